@@ -1,0 +1,40 @@
+# The README's two commands: `make demo` (the main job) and `make test`. Each creates .venv on a fresh clone.
+# `make venv` installs every extra (training, export, dev) for the benchmarks and tools.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+PIP    := $(BIN)/python -m pip install --quiet --disable-pip-version-check
+
+.PHONY: demo test venv lint clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) --upgrade pip
+
+$(VENV)/.stamp-core: pyproject.toml | $(BIN)/python
+	$(PIP) -e .
+	touch $@
+
+$(VENV)/.stamp-test: pyproject.toml | $(BIN)/python
+	$(PIP) -e '.[dev]'
+	touch $@
+
+$(VENV)/.stamp-all: pyproject.toml | $(BIN)/python
+	$(PIP) -e '.[dev,train,export]'
+	touch $@
+
+demo: $(VENV)/.stamp-core
+	@echo "demo: the daemon is not built yet; flying the training simulator on bundled building A instead"
+	$(BIN)/edge-explorer sim show --plan A --steps 150 --png runs/demo/episode.png
+
+test: $(VENV)/.stamp-test
+	$(BIN)/python -m pytest -q
+
+venv: $(VENV)/.stamp-all
+
+lint: $(VENV)/.stamp-test
+	$(BIN)/ruff check edge_explorer tests
+	$(BIN)/ruff format --check edge_explorer tests
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,131 @@
+"""Loader for ROS map_server maps (YAML + PGM/PNG), the format external floor plans arrive in (DESIGN.md §4).
+
+Pixel → state follows map_server's "trinary" mode: p = (255 − v)/255 (or v/255 when ``negate: 1``);
+occupied if p > occupied_thresh, free if p < free_thresh, unknown otherwise. Unknown pixels are treated as solid
+(they are unmapped structure in a floor plan). The image's first row is the top of the map (largest y).
+
+Interior: everything not reachable from the image border through free space. A real floor plan often contains
+closed rooms (no door drawn) or slivers cut off by the window border; the robot can never reach or see those, so
+they are dropped from the interior (reported in ``LoadedMap.dropped_free_area_m2``) and only the free region
+connected to the largest navigable area is kept. This keeps N_M honest: a coverage goal of 95 % must be reachable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from scipy import ndimage
+
+from edge_explorer.errors import PlanError
+from edge_explorer.world.grid import GridSpec
+from edge_explorer.world.plan import DEFAULT_CEILING_M
+from edge_explorer.world.raster import (
+    GRID_MARGIN_M,
+    ROBOT_RADIUS_M,
+    PlanRaster,
+    clearance_m,
+    interior_from_occupancy,
+)
+
+REQUIRED_KEYS = ("image", "resolution", "origin")
+
+
+@dataclass(frozen=True)
+class LoadedMap:
+    raster: PlanRaster
+    dropped_free_area_m2: float  # free space unreachable by the robot, removed from the interior
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise PlanError(f"{path}: cannot read map YAML ({exc.strerror})") from exc
+    except yaml.YAMLError as exc:
+        raise PlanError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(data, dict):
+        raise PlanError(f"{path}: a map_server YAML must be a mapping with keys {list(REQUIRED_KEYS)}")
+    missing = [k for k in REQUIRED_KEYS if k not in data]
+    if missing:
+        raise PlanError(f"{path}: missing key(s) {missing} (map_server needs image, resolution, origin)")
+    return data
+
+
+def _number(data: dict[str, Any], key: str, default: float, path: Path) -> float:
+    value = data.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise PlanError(f"{path}: {key!r} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def load_map_server(yaml_path: str | Path, robot_radius_m: float = ROBOT_RADIUS_M) -> LoadedMap:
+    """Load a map_server map as a :class:`PlanRaster` at the map's own resolution.
+
+    Raises :class:`PlanError` naming the file for a missing image, a non-positive resolution, a rotated origin,
+    bad thresholds, or a map with no navigable interior.
+    """
+    path = Path(yaml_path)
+    data = _read_yaml(path)
+    resolution = _number(data, "resolution", 0.0, path)
+    if resolution <= 0:
+        raise PlanError(f"{path}: resolution must be positive, got {resolution}")
+    origin = data["origin"]
+    if not isinstance(origin, (list, tuple)) or len(origin) != 3:
+        raise PlanError(f"{path}: origin must be [x, y, yaw], got {origin!r}")
+    if abs(float(origin[2])) > 1e-9:
+        raise PlanError(f"{path}: rotated origins (yaw {origin[2]}) are not supported; rotate the image instead")
+    occ_t = _number(data, "occupied_thresh", 0.65, path)
+    free_t = _number(data, "free_thresh", 0.196, path)
+    if not (0 <= free_t < occ_t <= 1):
+        raise PlanError(f"{path}: need 0 ≤ free_thresh < occupied_thresh ≤ 1, got {free_t}, {occ_t}")
+    image_path = (path.parent / str(data["image"])).resolve()
+    if not image_path.is_file():
+        raise PlanError(f"{path}: image {str(data['image'])!r} not found at {image_path}")
+    image = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        raise PlanError(f"{path}: image {image_path} could not be decoded (expect 8-bit PGM or PNG)")
+
+    value = image.astype(np.float32) / 255.0
+    p_occ = value if int(data.get("negate", 0)) else 1.0 - value
+    free_px = np.flipud(p_occ < free_t)  # flip: row 0 at the smallest y
+
+    margin = int(round(GRID_MARGIN_M / resolution))
+    free = np.pad(free_px, margin, constant_values=True)
+    solid = ~free
+    grid = GridSpec(
+        (float(origin[0]) - margin * resolution, float(origin[1]) - margin * resolution),
+        resolution,
+        free.shape,
+    )
+    height = np.where(solid, DEFAULT_CEILING_M, 0.0).astype(np.float32)
+    name = path.stem
+    interior = interior_from_occupancy(solid)
+    raster = PlanRaster(name, grid, height, interior, DEFAULT_CEILING_M)
+
+    # Keep the free space the robot can reach or look into: free cells connected to the largest navigable region
+    # (8-connected configuration-space component) and nearer to it than to any other region; drop the rest.
+    cspace = interior & (clearance_m(raster) >= robot_radius_m)
+    labels, count = ndimage.label(cspace, structure=np.ones((3, 3), dtype=bool))
+    if count == 0:
+        raise PlanError(f"{path}: no interior free space where a robot of radius {robot_radius_m} m fits")
+    main_id = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
+    nearest = ndimage.distance_transform_edt(labels == 0, return_distances=False, return_indices=True)
+    owner = labels[nearest[0], nearest[1]]
+    free_interior = interior & free
+    free_labels, _ = ndimage.label(free_interior, structure=np.ones((3, 3), dtype=bool))
+    touching_main = np.unique(free_labels[labels == main_id])
+    kept_free = np.isin(free_labels, touching_main[touching_main > 0]) & (owner == main_id)
+    # Interior = kept free space plus the solid cells that bound it and anything they enclose (walls count in N_M).
+    near_kept = cv2.dilate(kept_free.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    final_interior = ndimage.binary_fill_holes(kept_free | (solid & near_kept)) & interior
+    dropped = free_interior & ~kept_free
+    final_interior &= ~dropped
+    return LoadedMap(
+        PlanRaster(name, grid, height, final_interior, DEFAULT_CEILING_M),
+        float(dropped.sum() * resolution**2),
+    )

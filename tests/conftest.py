@@ -1,0 +1,26 @@
+"""Shared tiny fixtures: a two-room plan small enough to reason about by hand."""
+
+from __future__ import annotations
+
+import pytest
+
+from edge_explorer.world.plan import FloorPlan, Furniture, Rect
+
+
+def two_room_plan(door: bool = True, name: str = "two-rooms") -> FloorPlan:
+    """4 m × 3 m building, 0.1 m walls, split at x = 2 by a wall with a 1 m door; one tall and one low item."""
+    walls = (
+        Rect(0.0, 0.0, 4.0, 0.1),
+        Rect(0.0, 2.9, 4.0, 3.0),
+        Rect(0.0, 0.0, 0.1, 3.0),
+        Rect(3.9, 0.0, 4.0, 3.0),
+        Rect(1.95, 0.0, 2.05, 3.0),
+    )
+    doors = (Rect(1.95, 1.0, 2.05, 2.0),) if door else ()
+    furniture = (Furniture(Rect(0.1, 2.4, 0.7, 2.9), 1.8), Furniture(Rect(2.8, 0.6, 3.4, 1.2), 0.75))
+    return FloorPlan(name, ((0.0, 0.0), (4.0, 0.0), (4.0, 3.0), (0.0, 3.0)), walls, doors, furniture)
+
+
+@pytest.fixture
+def plan() -> FloorPlan:
+    return two_room_plan()
