@@ -127,7 +127,13 @@ def load_plan_json(path: str | Path) -> FloorPlan:
 
 
 def save_plan_json(plan: FloorPlan, path: str | Path) -> None:
-    Path(path).write_text(json.dumps(plan.to_dict(), indent=1) + "\n")
+    """Write the plan with one box per line (diff-friendly, compact)."""
+    data = plan.to_dict()
+    lines = [f'  "{k}": {json.dumps(v)}' for k, v in data.items() if not isinstance(v, list)]
+    for key in ("outline", "walls", "doors", "furniture"):
+        items = ",\n".join(f"    {json.dumps(item)}" for item in data[key])
+        lines.append(f'  "{key}": [\n{items}\n  ]' if items else f'  "{key}": []')
+    Path(path).write_text("{\n" + ",\n".join(lines) + "\n}\n")
 
 
 def _numbers(value: Any, n: int, what: str, source: str) -> list[float]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -142,7 +143,7 @@ def clearance_m(raster: PlanRaster) -> np.ndarray:
     occ = raster.occupied
     if not occ.any():
         return np.full(occ.shape, np.inf, dtype=np.float32)
-    cells = ndimage.distance_transform_edt(~occ)
+    cells = cv2.distanceTransform((~occ).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)  # exact Euclidean
     return (np.maximum(cells - 0.5, 0.0) * raster.grid.resolution_m).astype(np.float32)
 
 
