@@ -18,7 +18,10 @@ from typing import Any
 from edge_explorer.errors import EdgeExplorerError
 
 # One module per stage; each defines ``register(subparsers: argparse._SubParsersAction) -> None``.
-COMMAND_MODULES: tuple[str, ...] = ("edge_explorer.world.cli",)
+COMMAND_MODULES: tuple[str, ...] = (
+    "edge_explorer.world.cli",
+    "edge_explorer.sim.cli",
+)
 
 EXIT_USAGE = 2
 

@@ -1,0 +1,63 @@
+"""Dynamic thresholding of the predictor's occupancy probabilities (DESIGN.md §5; pure numpy, no torch).
+
+    f_t(m) = FREE if m < t_f, OCCUPIED if m > t_o, else UNKNOWN
+    t_f    = t_f_max · min(1, 10 · (observed area / max floor-plan area)^4)
+
+Early in a flight little is observed, so t_f is near 0 and almost nothing is predicted free: a confident but
+wrong "free" would send the vehicle towards walls it has not seen. As the observed area grows the free threshold
+opens up to ``t_f_max``. Observed cells always keep their observed state; NaN probabilities (no prediction for
+that cell) stay UNKNOWN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
+
+MAX_PLAN_AREA_M2 = 21.0 * 11.0  # the dataset's footprint envelope
+
+
+@dataclass(frozen=True)
+class ThresholdConfig:
+    """Thresholds of f_t; phase-2 training anneals them from (≈0, ≈1) to the defaults."""
+
+    t_f_max: float = 0.04
+    t_o: float = 0.94
+    max_plan_area_m2: float = MAX_PLAN_AREA_M2
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.t_f_max <= self.t_o <= 1.0:
+            raise ValueError(f"need 0 ≤ t_f_max ≤ t_o ≤ 1, got t_f_max={self.t_f_max}, t_o={self.t_o}")
+        if not self.max_plan_area_m2 > 0:
+            raise ValueError(f"max_plan_area_m2 must be positive, got {self.max_plan_area_m2}")
+
+
+def free_threshold(observed_area_m2: float, config: ThresholdConfig = ThresholdConfig()) -> float:
+    """t_f = t_f_max · min(1, 10 · (observed area / max floor-plan area)^4)."""
+    ratio = max(observed_area_m2, 0.0) / config.max_plan_area_m2
+    return config.t_f_max * min(1.0, 10.0 * ratio**4)
+
+
+def threshold_probabilities(probabilities: np.ndarray, t_f: float, t_o: float) -> np.ndarray:
+    """f_t: int8 codes FREE where p < t_f, OCCUPIED where p > t_o, UNKNOWN elsewhere (and where p is NaN)."""
+    codes = np.full(probabilities.shape, UNKNOWN, dtype=CELL_DTYPE)
+    with np.errstate(invalid="ignore"):
+        codes[probabilities < t_f] = FREE
+        codes[probabilities > t_o] = OCCUPIED
+    return codes
+
+
+def thresholded_map(
+    probabilities: np.ndarray,
+    observed_codes: np.ndarray,
+    observed_area_m2: float,
+    config: ThresholdConfig = ThresholdConfig(),
+) -> np.ndarray:
+    """M_thres: observed cells as observed, the others f_t of the prediction with the dynamic free threshold."""
+    if probabilities.shape != observed_codes.shape:
+        raise ValueError(f"probabilities {probabilities.shape} and observed map {observed_codes.shape} differ")
+    predicted = threshold_probabilities(probabilities, free_threshold(observed_area_m2, config), config.t_o)
+    return np.where(observed_codes != UNKNOWN, observed_codes, predicted)
