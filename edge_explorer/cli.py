@@ -21,6 +21,7 @@ from edge_explorer.errors import EdgeExplorerError
 COMMAND_MODULES: tuple[str, ...] = (
     "edge_explorer.world.cli",
     "edge_explorer.sim.cli",
+    "edge_explorer.mapping.cli",
 )
 
 EXIT_USAGE = 2

@@ -1,0 +1,95 @@
+"""Projection of a 3-D voxel map to the 2-D trinary map the simulator, predictor and planner use.
+
+Only a horizontal band of the voxel map counts (DESIGN.md §5): voxels whose centre lies below ``min_z_m`` (1.5 m,
+the height below which furniture is "low" and not part of the 2-D plan) are ignored, and so is the ceiling band
+from ``max_z_m`` (2.5 m) up. The flight height, 1.7 m, lies inside the band. Column rule, per (row, col):
+
+* OCCUPIED if any voxel of the band is occupied (an obstacle the vehicle at flight height could touch);
+* else FREE if every band voxel below the flight height (layers from 1.5 m up to 1.7 m) is known free — not
+  merely some voxel: a camera at 1.7 m sees over a cabinet taller than itself, and the free voxels above its
+  top must not turn the cabinet's unseen inside into free floor;
+* else UNKNOWN.
+
+The result is an int8 code array on the voxel map's :class:`GridSpec` (same origin and resolution as its
+columns). Place the voxel region on a plan grid's origin and :func:`align_to_grid` crops or pads it onto any
+grid that nests with it, e.g. the grids of ``PlanRaster.truth_codes()`` and of ``PlanRaster.coarsened(0.20)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, VoxelGrid
+from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN, GridSpec
+from edge_explorer.world.plan import TALL_HEIGHT_M
+
+
+@dataclass(frozen=True)
+class HeightBand:
+    """Voxels with centre z in [min_z_m, max_z_m) are projected; keep ``max_z_m`` below the lowest ceiling.
+
+    ``flight_z_m`` is the vehicle's flight height: a column is FREE only if every band layer below it is seen.
+    """
+
+    min_z_m: float = TALL_HEIGHT_M
+    max_z_m: float = 2.5
+    flight_z_m: float = 1.7
+
+    def __post_init__(self) -> None:
+        if not self.min_z_m < self.flight_z_m < self.max_z_m:
+            raise ValueError(
+                f"height band needs min_z_m < flight_z_m < max_z_m, got {self.min_z_m}, {self.flight_z_m}, "
+                f"{self.max_z_m}"
+            )
+
+    def layers(self, layer_centers_m: np.ndarray) -> np.ndarray:
+        """Indices of the layers in the band."""
+        return np.nonzero((layer_centers_m >= self.min_z_m) & (layer_centers_m < self.max_z_m))[0]
+
+
+def project(voxels: VoxelGrid, band: HeightBand = HeightBand()) -> tuple[np.ndarray, GridSpec]:
+    """(int8 codes [row y, col x], their grid) of ``voxels`` under the column rule of the module docstring."""
+    z = voxels.layer_centers_m()
+    layers = band.layers(z)
+    log_odds = voxels.log_odds[:, :, layers]
+    states = np.full(log_odds.shape, UNKNOWN, dtype=CELL_DTYPE)
+    states[log_odds != UNKNOWN_LOGODDS] = FREE
+    states[log_odds >= voxels.threshold_logodds] = OCCUPIED
+    return project_states(states, z[layers] - voxels.resolution_m / 2, band), voxels.grid
+
+
+def project_states(states: np.ndarray, layer_bottoms_m: np.ndarray, band: HeightBand) -> np.ndarray:
+    """The column rule on per-voxel codes of the band's layers (``states`` [row, col, layer], int8).
+
+    Shared by :func:`project` and anything that can label voxels (the OctoMap comparison), so both are
+    projected identically.
+    """
+    codes = np.full(states.shape[:2], UNKNOWN, dtype=CELL_DTYPE)
+    below_flight = layer_bottoms_m < band.flight_z_m
+    codes[(states[:, :, below_flight] != UNKNOWN).all(axis=2)] = FREE
+    codes[(states == OCCUPIED).any(axis=2)] = OCCUPIED
+    return codes
+
+
+def align_to_grid(codes: np.ndarray, grid: GridSpec, target: GridSpec) -> np.ndarray:
+    """``codes`` (on ``grid``) copied onto ``target``: same resolution, origins a whole number of cells apart.
+
+    Target cells outside ``grid`` are UNKNOWN. Raises ``ValueError`` if the grids do not nest.
+    """
+    r = grid.resolution_m
+    if abs(target.resolution_m - r) > 1e-9:
+        raise ValueError(f"grids have different resolutions ({r} m vs {target.resolution_m} m)")
+    offset = [(t - g) / r for t, g in zip(target.origin_xy, grid.origin_xy, strict=True)]
+    dcol, drow = (int(round(v)) for v in offset)
+    if max(abs(dcol - offset[0]), abs(drow - offset[1])) > 1e-6:
+        raise ValueError(f"grid origins {grid.origin_xy} and {target.origin_xy} are not whole cells apart")
+    out = np.full(target.shape, UNKNOWN, dtype=CELL_DTYPE)
+    rows, cols = target.shape
+    r0, c0 = max(0, -drow), max(0, -dcol)  # first target row/col that has a source
+    r1 = min(rows, grid.shape[0] - drow)
+    c1 = min(cols, grid.shape[1] - dcol)
+    if r1 > r0 and c1 > c0:
+        out[r0:r1, c0:c1] = codes[r0 + drow : r1 + drow, c0 + dcol : c1 + dcol]
+    return out
