@@ -49,25 +49,29 @@ class PlanRaster:
     def coarsened(self, resolution_m: float) -> PlanRaster:
         """The same building at a coarser, nesting resolution (e.g. 0.05 m → 0.20 m).
 
-        A coarse cell takes the tallest obstacle of its fine cells (an occupied fine cell makes it occupied)
-        and is interior if any fine cell is — the same rule the observed maps use.
+        A coarse cell takes the tallest obstacle of its fine cells (an occupied fine cell makes it occupied — the
+        rule the observed maps use). It is interior when one of its fine cells is, except on the building's outer
+        boundary: a coarse cell that also holds outside cells counts only if a sensor inside can see into it (it
+        holds a free interior cell or a wall face). Otherwise a sliver of perimeter wall that a 0.20 m cell
+        straddles would count in N_M although no method can ever observe it; wall cells inside the outline still
+        count, as DESIGN.md §7 asks.
         """
         f = resolution_factor(self.grid.resolution_m, resolution_m)
         grid = self.grid.coarsened(f)
+        free = self.interior & ~self.occupied
+        face = self.interior & self.occupied & ndimage.binary_dilation(free, structure=np.ones((3, 3), bool))
+        seeable = block_reduce_max(free | face, f, grid.shape)
+        outside = block_reduce_max(~self.interior, f, grid.shape)
+        interior = block_reduce_max(self.interior, f, grid.shape) & (seeable | ~outside)
         return PlanRaster(
-            self.name,
-            grid,
-            block_reduce_max(self.height_m, f, grid.shape),
-            block_reduce_max(self.interior, f, grid.shape),
-            self.ceiling_height_m,
+            self.name, grid, block_reduce_max(self.height_m, f, grid.shape), interior, self.ceiling_height_m
         )
 
 
 def block_reduce_max(fine: np.ndarray, factor: int, coarse_shape: tuple[int, int]) -> np.ndarray:
     """Max over ``factor``×``factor`` blocks, padding the fine array with its minimum where it does not divide."""
     rows, cols = coarse_shape
-    pad_value = fine.min() if fine.size else 0
-    padded = np.full((rows * factor, cols * factor), pad_value, dtype=fine.dtype)
+    padded = np.full((rows * factor, cols * factor), fine.min() if fine.size else 0, dtype=fine.dtype)
     padded[: fine.shape[0], : fine.shape[1]] = fine
     return padded.reshape(rows, factor, cols, factor).max(axis=(1, 3))
 

@@ -61,3 +61,23 @@ def test_clearance_is_distance_to_wall_edge(plan):
     row, col = r.grid.cell_of(1.0, 1.0)
     # nearest walls: x = 0.1 (0.9 m away) and y = 0.1 (0.9 m away); divider at 1.95 (0.95 m)
     assert clearance_m(r)[row, col] == pytest.approx(0.875, abs=0.06)
+
+
+def test_coarse_interior_leaves_out_unseeable_slivers_of_perimeter_walls():
+    """A 4.1 m wide building: at 0.20 m the cells that straddle the outer face of the east wall hold only a
+    sliver of wall no sensor inside can see; they are not interior, while every interior coarse cell holds a
+    free cell or a wall face."""
+    from scipy import ndimage
+
+    from edge_explorer.world.plan import FloorPlan, Rect
+
+    walls = (Rect(0, 0, 4.1, 0.1), Rect(0, 2.9, 4.1, 3.0), Rect(0, 0, 0.1, 3.0), Rect(3.95, 0, 4.1, 3.0))
+    plan = FloorPlan("odd-width", ((0, 0), (4.1, 0), (4.1, 3.0), (0, 3.0)), walls)
+    fine = rasterize(plan, 0.05)
+    coarse = fine.coarsened(0.20)
+    free = fine.interior & ~fine.occupied
+    seeable = free | (fine.occupied & ndimage.binary_dilation(free))
+    rows, cols = np.nonzero(coarse.interior)
+    for i, j in zip(rows, cols, strict=True):
+        assert seeable[4 * i : 4 * i + 4, 4 * j : 4 * j + 4].any(), (i, j)
+    assert coarse.interior.sum() * 0.04 == pytest.approx(4.1 * 3.0, rel=0.05)
