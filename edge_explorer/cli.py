@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "edge_explorer.world.cli",
     "edge_explorer.sim.cli",
     "edge_explorer.mapping.cli",
+    "edge_explorer.bench.cli",
 )
 
 EXIT_USAGE = 2

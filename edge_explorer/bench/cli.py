@@ -1,0 +1,108 @@
+"""``edge-explorer bench explore``: the exploration benchmark (Table I and the coverage figure of the paper)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+DESCRIPTION = "Exploration benchmark: path length to 95 % coverage per building and method, coverage figure."
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    bench = sub.add_parser("bench", help="benchmarks: explore", description=DESCRIPTION)
+    bsub = bench.add_subparsers(dest="bench_command", metavar="ACTION", required=True)
+    explore = bsub.add_parser(
+        "explore",
+        help="fly the exploration methods on buildings; Table I and the coverage-vs-path figure",
+        description="Runs every method --runs times per building from one start pose per building (runs differ by "
+        "their noise seed) until coverage and correct coverage reach 95 %%, the method has nothing left to explore, "
+        "or --max-steps.",
+    )
+    explore.add_argument(
+        "--methods",
+        default="frontier,fuel",
+        help="comma-separated: frontier, fuel, frontier+pred, fuel+pred (default frontier,fuel)",
+    )
+    explore.add_argument(
+        "--plans",
+        default="A,B,C,D",
+        help="plan reference(s): A-D, test, a folder, a plan .json or a map_server .yaml (default A,B,C,D)",
+    )
+    explore.add_argument("--runs", type=_positive_int, default=10, help="runs per building and method (default 10)")
+    explore.add_argument("--seed", type=int, default=0, help="benchmark seed: start poses and noise (default 0)")
+    explore.add_argument("--max-steps", type=_positive_int, default=1500, help="step cap per run (default 1500)")
+    explore.add_argument(
+        "--predictor",
+        help="module:callable mapping the 256×256 low-res window to probabilities (needed by the +pred methods)",
+    )
+    explore.add_argument("--workers", type=_positive_int, help="processes (default: all cores)")
+    explore.add_argument("--out-dir", type=Path, help="one JSON record per finished run; a rerun skips recorded runs")
+    explore.add_argument("--json", type=Path, help="write every figure here")
+    explore.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
+    explore.add_argument("--markdown", type=Path, help="also write the table here")
+    explore.set_defaults(func=_explore)
+
+
+def _explore(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from edge_explorer.bench import explore as bench
+    from edge_explorer.cli import write_json
+    from edge_explorer.world.catalog import load_buildings
+
+    methods = bench.parse_methods(args.methods)
+    if args.predictor is not None:
+        bench.load_predictor(args.predictor)  # fail now, with one line, not in a worker
+    config = bench.BenchConfig(max_steps=args.max_steps)
+    rasters = load_buildings(args.plans)
+    specs = bench.plan_specs(rasters, methods, args.runs, args.seed, config, args.predictor)
+    workers = args.workers or bench.default_workers()
+
+    def progress(iterable, total):
+        return tqdm(iterable, total=total, desc="bench explore", unit="run", mininterval=1.0)
+
+    records = bench.run_benchmark(rasters, specs, workers, args.out_dir, progress)
+    summary = bench.summarize(records, methods)
+    table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)
+    command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
+    print(table, end="")
+    failed = bench.failures(records)
+    print(f"{len(records)} runs, {len(failed)} without 95 % coverage or with a collision")
+    if args.markdown is not None:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(table)
+    panels = bench.figure_panels(records, methods)
+    if args.plot is not None:
+        title = f"coverage vs path length — {args.plans}, {args.runs} run(s) per building, seed {args.seed}"
+        bench.plot_curves(panels, args.plot, config.coverage_goal, title)
+    write_json(
+        args.json,
+        {
+            "command": command,
+            "plans": args.plans,
+            "methods": methods,
+            "runs_per_plan": args.runs,
+            "seed": args.seed,
+            "config": {
+                "coverage_goal": config.coverage_goal,
+                "max_steps": config.max_steps,
+                "predictor": args.predictor,
+            },
+            "summary": summary,
+            "failures": failed,
+            "runs": [{k: v for k, v in r.items() if k != "curves"} for r in records],
+            "curves": panels,
+        },
+    )
+    return 0

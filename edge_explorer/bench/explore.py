@@ -1,0 +1,466 @@
+"""The exploration benchmark: the paper's Table I and its coverage-vs-path-length figure (Fig. 5).
+
+Methods are planner names (:data:`~edge_explorer.plan.baselines.PLANNERS`: ``frontier``, ``fuel``), optionally
+with ``+pred``: the paper's "+ Predictor" variants, where the planner still decides on the *observed* map but every
+step the observed map goes through the predictor and coverage is counted on the thresholded prediction
+(DESIGN.md §5, §7; the simulator does this when it is given a predictor).
+
+Runs: every run of a building starts from the same pose, drawn from the configuration space by the simulator's own
+sampler with a seed derived from the benchmark seed and the building's name (:func:`start_pose`, so another method
+— the DRL policy — can use the same starts); runs differ by the sensor- and motion-noise seed (:func:`run_seed`).
+A run ends when coverage and correct coverage both reach the goal (95 %), when the planner has nothing left to
+explore, or at the step cap. Every step's coverage, correct coverage and path length are recorded.
+
+Per building and method (:func:`summarize`): the path length when coverage first reaches 95 % (min / max / avg /
+std over the runs that reach it: Table I), the same for correct coverage, how many runs reach each, the success
+rate (95 % coverage without a collision), steps and collisions. Runs go to worker processes; with an output folder
+each finished run is written there as a small JSON record and a rerun skips the runs already recorded with the same
+settings (:func:`run_benchmark`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import multiprocessing
+import os
+import time
+import zlib
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.plan.baselines import PLANNERS
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.world.raster import PlanRaster, clearance_m
+
+PRED_SUFFIX = "+pred"
+RECORD_FORMAT = "edge-explorer/explore-run"
+CURVE_STEP_M = 0.5  # path-length spacing of the mean curves
+START_CLEARANCE_M = 0.5  # from the start pose to the nearest wall
+_START_ATTEMPTS = 100
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """When a run ends."""
+
+    coverage_goal: float = 0.95
+    max_steps: int = 1500
+
+    def __post_init__(self) -> None:
+        if not 0 < self.coverage_goal <= 1 or self.max_steps < 1:
+            raise ValueError("coverage_goal must be in (0, 1] and max_steps ≥ 1")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything that determines one run; a stored record is reused only if its spec is equal."""
+
+    method: str
+    plan: str
+    run: int
+    seed: int  # sensor- and motion-noise seed
+    start_pose: tuple[float, float, float]
+    coverage_goal: float
+    max_steps: int
+    predictor: str | None  # reference for +pred methods (see load_predictor)
+
+    @property
+    def record_name(self) -> str:
+        return f"{self.method}__{self.plan}__run{self.run:02d}.json"
+
+
+# ---- methods, seeds, starts ---------------------------------------------------------------------------------------
+def parse_methods(text: str) -> list[str]:
+    """Validate a comma-separated method list (``frontier``, ``fuel``, each optionally with ``+pred``)."""
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    if not methods:
+        raise EdgeExplorerError("no method given; choose from " + ", ".join(_known_methods()))
+    for m in methods:
+        if m not in _known_methods():
+            raise EdgeExplorerError(f"unknown method {m!r}; choose from {', '.join(_known_methods())}")
+    if len(set(methods)) != len(methods):
+        raise EdgeExplorerError(f"method listed twice in {text!r}")
+    return methods
+
+
+def _known_methods() -> list[str]:
+    return [*PLANNERS, *(name + PRED_SUFFIX for name in PLANNERS)]
+
+
+def _derived_seed(seed: int, plan_name: str, *slot: int) -> int:
+    sequence = np.random.SeedSequence(entropy=seed, spawn_key=(zlib.crc32(plan_name.encode()), *slot))
+    return int(sequence.generate_state(1, dtype=np.uint32)[0])
+
+
+def run_seed(seed: int, plan_name: str, run: int) -> int:
+    """Noise seed of run ``run`` on a building: depends on the benchmark seed, the building's name and the run."""
+    return _derived_seed(seed, plan_name, run + 1)
+
+
+def start_pose(raster: PlanRaster, seed: int) -> tuple[float, float, float]:
+    """The start pose of every run on ``raster``: the simulator's uniform draw from its configuration space, seeded
+    from the benchmark seed and the building's name (so it does not depend on which other plans are benchmarked),
+    redrawn until it lies at least :data:`START_CLEARANCE_M` from the walls — a vehicle takes off in the open, and
+    one drawn at the very edge of the configuration space would touch a wall with its first, noisy, hover."""
+    env = ExplorationEnv([raster], EnvConfig(motion_noise=False))
+    clearance = clearance_m(raster)
+    best, best_clearance = None, -1.0
+    for attempt in range(_START_ATTEMPTS):
+        env.reset(seed=_derived_seed(seed, raster.name, 0, attempt))
+        row, col = (int(v) for v in raster.grid.cell_of(*env.pose[:2]))
+        if clearance[row, col] > best_clearance:
+            best, best_clearance = env.pose, float(clearance[row, col])
+        if best_clearance >= START_CLEARANCE_M:
+            break
+    assert best is not None
+    return best
+
+
+def load_predictor(reference: str) -> Predictor:
+    """The predictor named by ``module:attribute``: a callable from the 256×256 int8 north-up low-res window to
+    occupancy probabilities of the same shape (what :class:`~edge_explorer.sim.env.ExplorationEnv` takes)."""
+    module_name, _, attribute = reference.partition(":")
+    if not module_name or not attribute:
+        raise EdgeExplorerError(
+            f"--predictor {reference!r}: expected module:callable, a Python function from the 256×256 low-res "
+            "window to probabilities (loading trained predictor files comes with the map predictor)"
+        )
+    try:
+        predictor = getattr(importlib.import_module(module_name), attribute)
+    except (ImportError, AttributeError) as exc:
+        raise EdgeExplorerError(f"--predictor {reference!r}: cannot load it ({exc})") from exc
+    if not callable(predictor):
+        raise EdgeExplorerError(f"--predictor {reference!r} is not callable")
+    return predictor
+
+
+# ---- one run ------------------------------------------------------------------------------------------------------
+def run_episode(raster: PlanRaster, spec: RunSpec, predictor: Predictor | None = None) -> dict[str, Any]:
+    """Fly one run and return its record: the spec, how it ended, and the per-step curves."""
+    method = spec.method.removesuffix(PRED_SUFFIX)
+    config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps)  # the run, not the env, decides when to stop
+    env = ExplorationEnv([raster], config, predictor=predictor)
+    planner = PLANNERS[method](env.table)
+    planner.reset()
+    _, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
+    coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
+    previous, collisions, planner_s = 0, 0, 0.0
+    start = time.perf_counter()
+    while True:
+        if coverage[-1] >= spec.coverage_goal and correct[-1] >= spec.coverage_goal:
+            ending = "goal"
+            break
+        if len(path) > spec.max_steps:
+            ending = "step_cap"
+            break
+        t = time.perf_counter()
+        action = planner.act(env.maps, env.pose, previous)
+        planner_s += time.perf_counter() - t
+        if action is None:
+            ending = "explored"
+            break
+        _, _, _, _, info = env.step(action)
+        collisions += int(info["collided"])
+        previous = 0 if info["collided"] else action  # after a collision the vehicle has stopped
+        coverage.append(info["coverage"])
+        correct.append(info["correct_coverage"])
+        path.append(info["path_length_m"])
+    return {
+        "format": RECORD_FORMAT,
+        "spec": asdict(spec),
+        "ending": ending,
+        "steps": len(path) - 1,
+        "collisions": collisions,
+        "final_coverage": coverage[-1],
+        "final_correct_coverage": correct[-1],
+        "path_length_m": path[-1],
+        "path_at_coverage_m": _first_crossing(coverage, path, spec.coverage_goal),
+        "path_at_correct_coverage_m": _first_crossing(correct, path, spec.coverage_goal),
+        "wall_s": time.perf_counter() - start,
+        "planner_s": planner_s,
+        "curves": {
+            "coverage": np.round(coverage, 5).tolist(),
+            "correct_coverage": np.round(correct, 5).tolist(),
+            "path_length_m": np.round(path, 4).tolist(),
+        },
+    }
+
+
+def _first_crossing(values: Sequence[float], path_m: Sequence[float], goal: float) -> float | None:
+    hits = np.flatnonzero(np.asarray(values) >= goal)
+    return float(path_m[hits[0]]) if len(hits) else None
+
+
+# ---- many runs ----------------------------------------------------------------------------------------------------
+def plan_specs(
+    rasters: Sequence[PlanRaster],
+    methods: Sequence[str],
+    runs: int,
+    seed: int,
+    config: BenchConfig = BenchConfig(),
+    predictor: str | None = None,
+) -> list[RunSpec]:
+    """Every (method, building, run) of a benchmark, building-major so that early results cover every method."""
+    if any(m.endswith(PRED_SUFFIX) for m in methods) and predictor is None:
+        raise EdgeExplorerError("the +pred methods need --predictor (module:callable); none was given")
+    names = [r.name for r in rasters]
+    if len(set(names)) != len(names):
+        raise EdgeExplorerError("two plans share a name; benchmark records are keyed by plan name")
+    specs = []
+    for raster in rasters:
+        pose = start_pose(raster, seed)
+        for run in range(runs):
+            for method in methods:
+                specs.append(
+                    RunSpec(
+                        method,
+                        raster.name,
+                        run,
+                        run_seed(seed, raster.name, run),
+                        pose,
+                        config.coverage_goal,
+                        config.max_steps,
+                        predictor if method.endswith(PRED_SUFFIX) else None,
+                    )
+                )
+    return specs
+
+
+_WORKER_PREDICTORS: dict[str, Predictor] = {}
+
+
+def _run_task(task: tuple[PlanRaster, RunSpec]) -> dict[str, Any]:
+    raster, spec = task
+    predictor = None
+    if spec.predictor is not None:
+        if spec.predictor not in _WORKER_PREDICTORS:
+            _WORKER_PREDICTORS[spec.predictor] = load_predictor(spec.predictor)
+        predictor = _WORKER_PREDICTORS[spec.predictor]
+    return run_episode(raster, spec, predictor)
+
+
+def _single_thread_worker() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # one process per core: no nested thread pools
+
+
+def _read_record(path: Path, spec: RunSpec) -> dict[str, Any] | None:
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if record.get("format") != RECORD_FORMAT or record.get("spec") != json.loads(json.dumps(asdict(spec))):
+        return None
+    return record
+
+
+def run_benchmark(
+    rasters: Sequence[PlanRaster],
+    specs: Sequence[RunSpec],
+    workers: int = 1,
+    out_dir: Path | None = None,
+    progress: Callable[[Iterable[Any], int], Iterable[Any]] | None = None,
+) -> list[dict[str, Any]]:
+    """Records of every spec, in spec order; runs recorded in ``out_dir`` with the same spec are not flown again.
+
+    ``progress`` wraps the iterator of finished runs (e.g. a tqdm bar): ``progress(iterable, total)``.
+    """
+    by_name = {r.name: r for r in rasters}
+    records: dict[int, dict[str, Any]] = {}
+    todo = []
+    for k, spec in enumerate(specs):
+        stored = _read_record(out_dir / spec.record_name, spec) if out_dir is not None else None
+        if stored is not None:
+            records[k] = stored
+        else:
+            todo.append(k)
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    tasks = [(by_name[specs[k].plan], specs[k]) for k in todo]
+
+    def finished(results: Iterable[dict[str, Any]]) -> None:
+        wrapped = progress(results, len(todo)) if progress is not None else results
+        for k, record in zip(todo, wrapped, strict=True):
+            records[k] = record
+            if out_dir is not None:
+                (out_dir / specs[k].record_name).write_text(json.dumps(record, separators=(",", ":")) + "\n")
+
+    if workers <= 1 or len(tasks) <= 1:
+        finished(map(_run_task, tasks))
+    else:
+        # Fresh interpreters ("spawn"): forking a parent whose opencv thread pool is running can deadlock the child.
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_single_thread_worker) as pool:
+            finished(pool.map(_run_task, tasks, chunksize=1))
+    return [records[k] for k in range(len(specs))]
+
+
+def default_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+# ---- statistics -------------------------------------------------------------------------------------------------
+def _stats(values: Sequence[float]) -> dict[str, float | None]:
+    if len(values) == 0:
+        return {"min": None, "max": None, "avg": None, "std": None}
+    a = np.asarray(values, dtype=np.float64)
+    return {"min": float(a.min()), "max": float(a.max()), "avg": float(a.mean()), "std": float(a.std())}
+
+
+def _group_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    at_coverage = [r["path_at_coverage_m"] for r in records if r["path_at_coverage_m"] is not None]
+    at_correct = [r["path_at_correct_coverage_m"] for r in records if r["path_at_correct_coverage_m"] is not None]
+    success = [r for r in records if r["path_at_coverage_m"] is not None and r["collisions"] == 0]
+    return {
+        "runs": len(records),
+        "path_at_coverage_m": _stats(at_coverage),
+        "reached_coverage": len(at_coverage),
+        "path_at_correct_coverage_m": _stats(at_correct),
+        "reached_correct_coverage": len(at_correct),
+        "success_rate": len(success) / len(records),
+        "collisions": int(sum(r["collisions"] for r in records)),
+        "runs_with_collision": sum(1 for r in records if r["collisions"] > 0),
+        "steps": _stats([r["steps"] for r in records]),
+        "final_coverage": _stats([r["final_coverage"] for r in records]),
+        "final_correct_coverage": _stats([r["final_correct_coverage"] for r in records]),
+        "endings": {e: sum(1 for r in records if r["ending"] == e) for e in ("goal", "explored", "step_cap")},
+        "planner_ms_per_step": 1e3 * sum(r["planner_s"] for r in records) / max(sum(r["steps"] for r in records), 1),
+    }
+
+
+def summarize(records: Sequence[dict[str, Any]], methods: Sequence[str]) -> dict[str, Any]:
+    """``{"plans": {plan: {method: summary}}, "all": {method: summary over every run}}``."""
+    plans: dict[str, dict[str, Any]] = {}
+    for plan in dict.fromkeys(r["spec"]["plan"] for r in records):
+        plans[plan] = {
+            m: _group_summary([r for r in records if r["spec"]["plan"] == plan and r["spec"]["method"] == m])
+            for m in methods
+        }
+    overall = {m: _group_summary([r for r in records if r["spec"]["method"] == m]) for m in methods}
+    return {"plans": plans, "all": overall}
+
+
+def failures(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Runs that did not reach the coverage goal or collided, with how they ended."""
+    return [
+        {
+            "method": r["spec"]["method"],
+            "plan": r["spec"]["plan"],
+            "run": r["spec"]["run"],
+            "ending": r["ending"],
+            "final_coverage": r["final_coverage"],
+            "collisions": r["collisions"],
+            "steps": r["steps"],
+        }
+        for r in records
+        if r["path_at_coverage_m"] is None or r["collisions"] > 0
+    ]
+
+
+def _fmt_stats(s: dict[str, float | None]) -> str:
+    if s["avg"] is None:
+        return "–"
+    return f"{s['min']:.1f} / {s['max']:.1f} / {s['avg']:.1f} / {s['std']:.1f}"
+
+
+def markdown_table(summary: dict[str, Any], methods: Sequence[str], per_plan: bool = True) -> str:
+    """Table I: per building (and over all runs) and method, path length at 95 % coverage and correct coverage."""
+    lines = [
+        "| building | method | path at 95 % coverage (m) min / max / avg / std | reached | "
+        "path at 95 % correct coverage (m) min / max / avg / std | reached | success | collisions | steps avg |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    groups = [*summary["plans"].items()] if per_plan else []
+    if len(summary["plans"]) > 1 or not per_plan:
+        groups.append((f"all ({len(summary['plans'])} plans)", summary["all"]))
+    for plan, by_method in groups:
+        for m in methods:
+            s = by_method[m]
+            lines.append(
+                f"| {plan} | {m} | {_fmt_stats(s['path_at_coverage_m'])} | {s['reached_coverage']}/{s['runs']} | "
+                f"{_fmt_stats(s['path_at_correct_coverage_m'])} | {s['reached_correct_coverage']}/{s['runs']} | "
+                f"{100 * s['success_rate']:.0f} % | {s['collisions']} | {s['steps']['avg']:.0f} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+# ---- curves and the figure ---------------------------------------------------------------------------------------
+def mean_curves(records: Sequence[dict[str, Any]], step_m: float = CURVE_STEP_M) -> dict[str, Any]:
+    """Coverage and correct coverage against path length, as mean and std over ``records``.
+
+    Each run's curve is sampled every ``step_m`` metres of path (the value after the last step within that path
+    length) and held at its final value after the run ended, so runs of different lengths average fairly.
+    """
+    longest = max(r["curves"]["path_length_m"][-1] for r in records)
+    grid = np.arange(0.0, longest + step_m, step_m)
+    out: dict[str, Any] = {"path_m": np.round(grid, 3).tolist()}
+    for key in ("coverage", "correct_coverage"):
+        sampled = []
+        for r in records:
+            path = np.asarray(r["curves"]["path_length_m"])
+            values = np.asarray(r["curves"][key])
+            sampled.append(values[np.searchsorted(path, grid, side="right") - 1])
+        a = np.asarray(sampled)
+        out[key] = {"mean": np.round(a.mean(axis=0), 5).tolist(), "std": np.round(a.std(axis=0), 5).tolist()}
+    return out
+
+
+def figure_panels(records: Sequence[dict[str, Any]], methods: Sequence[str], max_panels: int = 6) -> dict[str, Any]:
+    """Mean curves per panel and method: one panel per building, or one for all of them if there are more than
+    ``max_panels`` buildings (the test split)."""
+    plans = list(dict.fromkeys(r["spec"]["plan"] for r in records))
+    if len(plans) <= max_panels:
+        panels = {p: [r for r in records if r["spec"]["plan"] == p] for p in plans}
+    else:
+        panels = {f"all {len(plans)} plans": list(records)}
+    return {
+        title: {m: mean_curves([r for r in group if r["spec"]["method"] == m]) for m in methods}
+        for title, group in panels.items()
+    }
+
+
+def plot_curves(panels: dict[str, Any], path: Path, goal: float, title: str) -> None:
+    """Fig. 5: mean coverage (solid) and correct coverage (dashed) against path length with ±1 std bands."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(panels)
+    cols = min(n, 2)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6.4 * cols, 4.2 * rows), squeeze=False)
+    for ax, (panel, by_method) in zip(axes.ravel(), panels.items(), strict=False):
+        for k, (method, curves) in enumerate(by_method.items()):
+            color = f"C{k}"
+            x = np.asarray(curves["path_m"])
+            for key, style in (("coverage", "-"), ("correct_coverage", "--")):
+                mean = np.asarray(curves[key]["mean"])
+                std = np.asarray(curves[key]["std"])
+                label = method if key == "coverage" else f"{method} (correct)"
+                ax.plot(x, mean, style, color=color, lw=1.6 if key == "coverage" else 1.0, label=label)
+                if key == "coverage":
+                    ax.fill_between(x, np.clip(mean - std, 0, 1), np.clip(mean + std, 0, 1), color=color, alpha=0.2)
+        ax.axhline(goal, color="0.4", lw=0.8, ls=":")
+        ax.set_title(panel)
+        ax.set_xlabel("path length [m]")
+        ax.set_ylabel("coverage")
+        ax.set_ylim(0, 1.01)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,54 @@
+"""The common interface of the exploration planners the benchmark flies, and their registry.
+
+A planner sees what the vehicle has observed and where it is, and answers one of the six action ids
+(:class:`~edge_explorer.sim.dynamics.Action`) per step — the DRL policy's interface, so every method flies the same
+vehicle and path lengths compare. ``None`` means the planner has nothing left to explore.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.plan.follow import Pose
+from edge_explorer.sim.dynamics import ActionTable
+
+
+class Planner(Protocol):
+    def reset(self) -> None:
+        """Start a new flight: forget goals and anything remembered about the last one."""
+
+    def act(self, maps: ObservedMaps, pose: Pose, previous_action: int) -> int | None:
+        """Next action id from the observed maps, the pose (x_m, y_m, yaw_rad) and the previous action (the one
+        whose momentum the vehicle carries: hover after a collision); ``None`` when done."""
+
+
+def _nearest_frontier(table: ActionTable | None) -> Planner:
+    from edge_explorer.plan.frontier import NearestFrontier
+
+    return NearestFrontier(table=table)
+
+
+def _fuel(table: ActionTable | None) -> Planner:
+    try:
+        from edge_explorer.plan.fuel import FuelPlanner
+    except ImportError as exc:
+        raise EdgeExplorerError(
+            f"the FUEL-style planner needs OR-Tools ({exc.name} is missing): pip install 'edge-explorer[bench]' "
+            "or run `make venv`"
+        ) from exc
+
+    return FuelPlanner(table=table)
+
+
+PLANNERS: dict[str, Callable[[ActionTable | None], Planner]] = {"frontier": _nearest_frontier, "fuel": _fuel}
+
+
+def make_planner(name: str, table: ActionTable | None = None) -> Planner:
+    """A planner by its benchmark name (``frontier`` or ``fuel``) with default settings."""
+    try:
+        return PLANNERS[name](table)
+    except KeyError:
+        raise ValueError(f"unknown planner {name!r}; known: {', '.join(PLANNERS)}") from None

@@ -1,0 +1,195 @@
+"""Path following with the six discrete actions of the learned planner (DESIGN.md §6).
+
+The baselines (nearest frontier, FUEL-style) and the daemon's frontier fallback fly the same vehicle as the DRL
+policy: one of six actions per step, whose motion depends on the previous action (the shared action table). So a
+path is not tracked by a continuous controller; at every step :func:`choose_action` tries every two-action
+sequence with the table's *mean* motion, drops the unsafe ones and takes the first action of the sequence whose
+two poses lie closest to a pure-pursuit target on the path — a point ``lookahead_m`` further along the path than
+the vehicle — while facing it, plus a cost for coming closer to a wall than is comfortable and a ten times higher
+one inside the caution margin (so a vehicle flies there only through narrow passages, and one that motion noise
+pushed there flies out before anything else).
+Looking two steps ahead lets it brake or start a turn early, as the momentum requires.
+
+Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
+observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at
+least the robot radius plus a margin for the motion noise (the complement of the inflated map's NON_FLIGHT band,
+plus the margin), for the motion itself and for the drift that braking after it still causes — so the vehicle can
+always stop. If sensor noise puts the vehicle inside that band, motions that do not bring it closer to an obstacle
+stay allowed, so it can fly out again. Unknown cells count as unsafe: the vehicle only flies where it has seen.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from itertools import product
+
+import cv2
+import numpy as np
+
+from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable, body_to_map, swept_path_blocked, wrap_angle_rad
+from edge_explorer.world.grid import FREE, OCCUPIED, GridSpec
+from edge_explorer.world.raster import ROBOT_RADIUS_M
+
+Pose = tuple[float, float, float]  # (x_m, y_m, yaw_rad) in the map frame
+
+
+@dataclass(frozen=True)
+class FollowConfig:
+    """Pure-pursuit target, arrival tolerances and the safety distance of :func:`choose_action`."""
+
+    lookahead_m: float = 0.8
+    goal_tolerance_m: float = 0.25
+    yaw_tolerance_rad: float = math.radians(20.0)
+    heading_weight_m_per_rad: float = 0.3  # how much a heading error costs against a distance to the target
+    robot_radius_m: float = ROBOT_RADIUS_M
+    safety_margin_m: float = 0.05  # hard: mean motions keep this beyond the robot radius
+    caution_margin_m: float = 0.1  # soft: closer than the robot radius plus this costs escape_weight
+    clearance_weight: float = 2.0  # cost per metre that a pose lies closer than comfort_distance_m to an obstacle
+    comfort_distance_m: float = 0.5
+    escape_weight: float = 20.0  # cost per metre that a pose lies inside the caution margin: get out first
+
+    def __post_init__(self) -> None:
+        if min(self.lookahead_m, self.goal_tolerance_m, self.yaw_tolerance_rad) <= 0:
+            raise ValueError("lookahead_m, goal_tolerance_m and yaw_tolerance_rad must be positive")
+        weights = (self.heading_weight_m_per_rad, self.clearance_weight, self.escape_weight)
+        if min(*weights, self.robot_radius_m, self.safety_margin_m) < 0 or self.caution_margin_m < self.safety_margin_m:
+            raise ValueError("the weights, robot_radius_m and safety_margin_m must be ≥ 0, caution_margin_m ≥ safety")
+
+    @property
+    def safe_distance_m(self) -> float:
+        """Closest a mean motion may take the vehicle's centre to an observed obstacle."""
+        return self.robot_radius_m + self.safety_margin_m
+
+    @property
+    def caution_distance_m(self) -> float:
+        """Closer than this to an obstacle the vehicle flies only where the path leads through a narrow passage."""
+        return self.robot_radius_m + self.caution_margin_m
+
+
+@dataclass(frozen=True)
+class FreeSpace:
+    """Where the vehicle may fly, from an observed high-res code map (one per step, shared with the planners)."""
+
+    grid: GridSpec
+    known_free: np.ndarray  # bool: observed FREE
+    clearance_m: np.ndarray  # float32: distance between cell centres to the nearest observed OCCUPIED cell
+
+    @classmethod
+    def from_codes(cls, codes: np.ndarray, grid: GridSpec) -> FreeSpace:
+        """Distances as :func:`~edge_explorer.mapping.ego.inflate_codes` measures them (centre to centre), so
+        ``clearance_m <= radius`` is exactly its NON_FLIGHT band; an all-free map has infinite clearance."""
+        occupied = codes == OCCUPIED
+        if occupied.any():
+            cells = cv2.distanceTransform((~occupied).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            clearance = cells * np.float32(grid.resolution_m)
+        else:
+            clearance = np.full(codes.shape, np.inf, dtype=np.float32)
+        return cls(grid, codes == FREE, clearance)
+
+    def clearance_at(self, x_m: float, y_m: float) -> float:
+        """Clearance of the cell holding (x_m, y_m); 0 off the grid."""
+        row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))
+        if not (0 <= row < self.grid.shape[0] and 0 <= col < self.grid.shape[1]):
+            return 0.0
+        return float(self.clearance_m[row, col])
+
+    def unsafe_mask(self, x_m: float, y_m: float, safe_distance_m: float) -> np.ndarray:
+        """Cells a motion from (x_m, y_m) may not enter: unknown or occupied, or closer to an obstacle than
+        ``safe_distance_m`` — or, if the vehicle is already that close, closer than it is now."""
+        row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))
+        threshold = min(safe_distance_m, self.clearance_at(x_m, y_m))
+        unsafe = ~self.known_free | (self.clearance_m < threshold)
+        if 0 <= row < self.grid.shape[0] and 0 <= col < self.grid.shape[1]:
+            unsafe[row, col] = False  # where it is now: it must be able to leave
+        return unsafe
+
+
+def _pursuit_target(path_xy_m: np.ndarray, xy_m: np.ndarray, lookahead_m: float) -> np.ndarray:
+    """Point ``lookahead_m`` along the polyline beyond the point of the polyline nearest to ``xy_m``."""
+    if len(path_xy_m) == 1:
+        return path_xy_m[0]
+    a, b = path_xy_m[:-1], path_xy_m[1:]
+    seg = b - a
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    t = np.clip(np.einsum("ij,ij->i", xy_m - a, seg) / np.maximum(seg_len**2, 1e-12), 0.0, 1.0)
+    nearest = a + t[:, None] * seg
+    k = int(np.argmin(np.hypot(*(nearest - xy_m).T)))
+    cumulative = np.concatenate([[0.0], np.cumsum(seg_len)])
+    s_target = cumulative[k] + t[k] * seg_len[k] + lookahead_m
+    if s_target >= cumulative[-1]:
+        return path_xy_m[-1]
+    j = int(np.searchsorted(cumulative, s_target, side="right")) - 1
+    u = (s_target - cumulative[j]) / max(seg_len[j], 1e-12)
+    return a[j] + u * seg[j]
+
+
+def _pose_cost(pose: Pose, target_xy_m: np.ndarray, final_yaw_rad: float | None, config: FollowConfig) -> float:
+    """Distance to the target plus the heading error towards it (towards ``final_yaw_rad`` once there); the
+    caller adds the clearance term."""
+    dx, dy = target_xy_m[0] - pose[0], target_xy_m[1] - pose[1]
+    distance = math.hypot(dx, dy)
+    if distance > config.goal_tolerance_m:
+        yaw_error = wrap_angle_rad(math.atan2(dy, dx) - pose[2])
+    elif final_yaw_rad is not None:
+        yaw_error = wrap_angle_rad(final_yaw_rad - pose[2])
+    else:
+        yaw_error = 0.0
+    return distance + config.heading_weight_m_per_rad * abs(yaw_error)
+
+
+def arrived(pose: Pose, path_xy_m: np.ndarray, final_yaw_rad: float | None, config: FollowConfig) -> bool:
+    """At the path's end within the tolerance, facing ``final_yaw_rad`` (if given) within the yaw tolerance."""
+    end = path_xy_m[-1]
+    if math.hypot(end[0] - pose[0], end[1] - pose[1]) > config.goal_tolerance_m:
+        return False
+    return final_yaw_rad is None or abs(wrap_angle_rad(final_yaw_rad - pose[2])) <= config.yaw_tolerance_rad
+
+
+def choose_action(
+    table: ActionTable,
+    pose: Pose,
+    previous_action: int,
+    path_xy_m: np.ndarray,
+    free: FreeSpace,
+    config: FollowConfig = FollowConfig(),
+    final_yaw_rad: float | None = None,
+) -> int | None:
+    """The action that best advances along ``path_xy_m`` ((N, 2) metres, from near the vehicle to the goal).
+
+    Returns ``None`` once the vehicle has :func:`arrived`. Among the two-action sequences whose mean motions are
+    safe (see the module docstring) it picks the first action of the one with the lowest summed pursuit cost of its
+    two poses. Hover when no sequence is safe (a state the follower's own choices never lead to).
+    """
+    path = np.asarray(path_xy_m, dtype=np.float64).reshape(-1, 2)
+    if arrived(pose, path, final_yaw_rad, config):
+        return None
+    target = _pursuit_target(path, np.array(pose[:2]), config.lookahead_m)
+    unsafe = free.unsafe_mask(pose[0], pose[1], config.safe_distance_m)
+
+    def safe_step(start: Pose, previous: int, action: int) -> Pose | None:
+        end = body_to_map(*start, *table.mean_step(previous, action))
+        brake = body_to_map(*end, *table.mean_step(action, Action.HOVER))
+        for a, b in ((start, end), (end, brake)):
+            if (a[0], a[1]) != (b[0], b[1]) and swept_path_blocked(unsafe, free.grid, a[:2], b[:2]):
+                return None
+        return end
+
+    first = {a: safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
+    best_action, best_cost = int(Action.HOVER), math.inf
+    for a1, a2 in product(range(NUM_ACTIONS), repeat=2):
+        p1 = first[a1]
+        p2 = safe_step(p1, a1, a2) if p1 is not None else None
+        if p2 is None:
+            continue
+        # Both poses count, so progress now beats the same progress later (no waiting for a better next step);
+        # hover costs a little extra so that an equally good motion wins.
+        cost = 1e-3 if a1 == Action.HOVER else 0.0
+        for p in (p1, p2):  # and keep off the walls where there is room: motion noise then cannot reach them
+            cost += _pose_cost(p, target, final_yaw_rad, config)
+            clearance = free.clearance_at(p[0], p[1])
+            cost += config.clearance_weight * max(0.0, config.comfort_distance_m - clearance)
+            cost += config.escape_weight * max(0.0, config.caution_distance_m - clearance)
+        if cost < best_cost:
+            best_action, best_cost = a1, cost
+    return best_action

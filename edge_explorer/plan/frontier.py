@@ -1,0 +1,388 @@
+"""Frontiers, the planning graph and the Nearest Frontier baseline (Yamauchi 1997).
+
+Frontier (:func:`frontier_mask`): a FREE cell with an UNKNOWN 8-neighbour. The planners look for frontiers on the
+0.20 m observed map, the grid coverage is counted on (DESIGN.md §7): a coarse cell is known as soon as one of its
+0.05 m cells is, so every frontier there borders cells whose observation raises coverage, and the unknown specks
+of the fine map that do not count (a ray's grazing gap, the inside of a wall) are no targets.
+
+Planning graph (:class:`PlanningGraph`): 8-connected cells of a grid ``factor``× coarser than the 0.05 m map
+(default 2: 0.10 m, which keeps at least two cells across the free part of a 0.80 m door; 0.20 m cells can lose
+it, and 0.05 m cells make the search four times larger). A planning cell is traversable only if all its fine cells
+are observed FREE and at least the robot radius plus the follower's margin from every observed OCCUPIED cell —
+UNKNOWN is *not* traversable, so a path never crosses space nobody has seen. An edge costs its length times
+``1 + clearance_weight · (shortfall of the clearance below clearance_soft_m) / clearance_soft_m``, so paths keep
+away from walls where there is room. Shortest paths come from ``scipy.sparse.csgraph.dijkstra``. The vehicle's
+own cell is always a node, so it can leave a spot that sensor noise made look too tight.
+
+Nearest Frontier (:class:`NearestFrontier`): go to the traversable cell within ``goal_radius_m`` of a frontier
+that is nearest along the graph, then face the frontier. The shared :class:`GoalPlanner` loop flies the path with
+:func:`~edge_explorer.plan.follow.choose_action` and replans when the target is no longer a frontier (seen), when
+the path became untraversable; a goal *fails* when the vehicle reached and faced its target and it is still a
+frontier, or when the vehicle stalls (no progress, or hovering because no safe motion gets it closer): such a target
+cannot be seen from where the graph leads and is dropped. With no reachable frontier left the vehicle first turns a
+full circle in place (it may have seen too little, e.g. at the start), then reports that it is done.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import cv2
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose, choose_action
+from edge_explorer.sim.dynamics import Action, ActionTable, load_action_table
+from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec, resolution_factor
+
+_NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each undirected 8-neighbour edge once
+_FULL_TURN_STEPS = 12  # 12 × 30°
+_ESCAPE_RADIUS_M = 1.0  # around a vehicle that stands too close to an obstacle, cells as close count as traversable
+_MAX_HOVERS = 3  # hovers in a row after which the follower counts as stuck
+_NEARBY_M = 4.0  # graph cost within which the nearest-frontier search looks first
+
+
+def frontier_mask(codes: np.ndarray) -> np.ndarray:
+    """FREE cells with at least one UNKNOWN 8-neighbour (cells beyond the array edge do not count)."""
+    unknown = (codes == UNKNOWN).astype(np.uint8)
+    near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return (codes == FREE) & near_unknown.astype(bool)
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    """Resolution and edge costs of the planning graph."""
+
+    factor: int = 2  # planning cell = factor × factor cells of the 0.05 m map
+    clearance_soft_m: float = 0.6  # clearance above which an edge costs only its length
+    clearance_weight: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.factor < 1 or self.clearance_soft_m <= 0 or self.clearance_weight < 0:
+            raise ValueError("factor must be ≥ 1, clearance_soft_m > 0 and clearance_weight ≥ 0")
+
+
+def _block_reduce(fine: np.ndarray, factor: int, combine: np.ufunc, pad_value: float | bool) -> np.ndarray:
+    """``combine`` (np.minimum, np.logical_and) over factor × factor blocks; missing cells take ``pad_value``."""
+    rows, cols = -(-fine.shape[0] // factor), -(-fine.shape[1] // factor)
+    padded = np.full((rows * factor, cols * factor), pad_value, dtype=fine.dtype)
+    padded[: fine.shape[0], : fine.shape[1]] = fine
+    out = padded[::factor, ::factor].copy()
+    for di in range(factor):
+        for dj in range(factor):
+            combine(out, padded[di::factor, dj::factor], out=out)
+    return out
+
+
+@dataclass(frozen=True)
+class Traversable:
+    """The planning grid: which of its cells the vehicle may cross, and their clearance."""
+
+    grid: GridSpec
+    mask: np.ndarray  # bool
+    clearance_m: np.ndarray  # float32: the smallest clearance of the cell's fine cells
+
+    @classmethod
+    def from_free_space(
+        cls, free: FreeSpace, safe_distance_m: float, pose_xy_m: tuple[float, float], factor: int
+    ) -> Traversable:
+        """Conservative coarsening of ``free`` (see the module docstring). Around the vehicle the follower's escape
+        rule applies: if it stands closer to an obstacle than ``safe_distance_m``, cells as close as it is count too,
+        so a path out exists; its own cell is always included."""
+        grid = free.grid.coarsened(factor)
+        clearance = _block_reduce(free.clearance_m, factor, np.minimum, np.float32(0.0))
+        known_free = _block_reduce(free.known_free, factor, np.logical_and, False)
+        mask = known_free & (clearance >= safe_distance_m)
+        row, col = (int(v) for v in grid.cell_of(*pose_xy_m))
+        if 0 <= row < grid.shape[0] and 0 <= col < grid.shape[1]:
+            here_m = free.clearance_at(*pose_xy_m)
+            if here_m < safe_distance_m:
+                r = int(math.ceil(_ESCAPE_RADIUS_M / grid.resolution_m))
+                window = (slice(max(row - r, 0), row + r + 1), slice(max(col - r, 0), col + r + 1))
+                mask[window] |= known_free[window] & (clearance[window] >= here_m - grid.resolution_m)
+            mask[row, col] = True
+        return cls(grid, mask, clearance)
+
+    def contains_path(self, path_xy_m: np.ndarray) -> bool:
+        """Every cell of the path but its first (where the vehicle was) is traversable."""
+        xy = path_xy_m[1:]
+        rows, cols = self.grid.cell_of(xy[:, 0], xy[:, 1])
+        return bool(self.grid.contains(rows, cols).all() and self.mask[rows, cols].all())
+
+
+@dataclass(frozen=True)
+class PlanningGraph:
+    """Traversable planning cells as a weighted sparse graph; node ids number the traversable cells row-major."""
+
+    grid: GridSpec  # the planning grid
+    node_of: np.ndarray  # int64 per planning cell: node id, −1 where not traversable
+    cells: np.ndarray  # int64 (N,): flat planning-cell index of each node
+    graph: csr_matrix
+
+    @classmethod
+    def build(
+        cls, free: FreeSpace, safe_distance_m: float, pose_xy_m: tuple[float, float], config: GraphConfig
+    ) -> PlanningGraph:
+        """The graph of ``free`` (see the module docstring); the cell holding ``pose_xy_m`` is always a node."""
+        traversable = Traversable.from_free_space(free, safe_distance_m, pose_xy_m, config.factor)
+        return cls.from_traversable(traversable, config)
+
+    @classmethod
+    def from_traversable(cls, traversable: Traversable, config: GraphConfig) -> PlanningGraph:
+        """8-connected graph of the traversable cells, edges weighted as the module docstring says."""
+        grid = traversable.grid
+        node_of = np.full(grid.shape, -1, dtype=np.int64)
+        cells = np.flatnonzero(traversable.mask)
+        node_of.flat[cells] = np.arange(len(cells))
+        shortfall = np.clip(1.0 - traversable.clearance_m / config.clearance_soft_m, 0.0, 1.0)
+        penalty = config.clearance_weight * shortfall
+        sources, targets, weights = [], [], []
+        n_rows, n_cols = grid.shape
+        for di, dj in _NEIGHBOURS:
+            a = (slice(0, n_rows - di), slice(max(-dj, 0), n_cols - max(dj, 0)))
+            b = (slice(di, n_rows), slice(max(dj, 0), n_cols - max(-dj, 0)))
+            both = (node_of[a] >= 0) & (node_of[b] >= 0)
+            sources.append(node_of[a][both])
+            targets.append(node_of[b][both])
+            step_m = grid.resolution_m * math.hypot(di, dj)
+            weights.append(step_m * (1.0 + 0.5 * (penalty[a][both] + penalty[b][both])))
+        n = len(cells)
+        graph = csr_matrix((np.concatenate(weights), (np.concatenate(sources), np.concatenate(targets))), shape=(n, n))
+        return cls(grid, node_of, cells, graph)
+
+    def node_at(self, x_m: float, y_m: float) -> int:
+        """Node id of the planning cell holding (x_m, y_m), −1 if it is not traversable."""
+        row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))
+        if not (0 <= row < self.grid.shape[0] and 0 <= col < self.grid.shape[1]):
+            return -1
+        return int(self.node_of[row, col])
+
+    def search(self, sources: list[int] | np.ndarray, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """(cost, predecessors) of Dijkstra from each source node: arrays (len(sources), N); nodes costlier than
+        ``limit`` are not expanded (cost inf), which keeps a search for something nearby cheap."""
+        return dijkstra(self.graph, directed=False, indices=np.asarray(sources), return_predecessors=True, limit=limit)
+
+    def path_xy_m(self, predecessors: np.ndarray, node: int) -> np.ndarray:
+        """(K, 2) centres of the cells from the search's source to ``node`` (one row of ``search``'s output)."""
+        chain = [node]
+        while predecessors[chain[-1]] >= 0:
+            chain.append(int(predecessors[chain[-1]]))
+        flat = self.cells[np.array(chain[::-1])]
+        x, y = self.grid.center_of(*np.divmod(flat, self.grid.shape[1]))
+        return np.stack([x, y], axis=1)
+
+    def node_xy_m(self, nodes: np.ndarray) -> np.ndarray:
+        """(K, 2) centres of the given nodes' cells."""
+        x, y = self.grid.center_of(*np.divmod(self.cells[np.asarray(nodes)], self.grid.shape[1]))
+        return np.stack([np.atleast_1d(x), np.atleast_1d(y)], axis=1)
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Settings the frontier planners share."""
+
+    follow: FollowConfig = FollowConfig()
+    graph: GraphConfig = GraphConfig()
+    goal_radius_m: float = 0.5  # a goal cell lies this close to its frontier
+    stall_steps: int = 12  # a goal fails after this many steps without getting 5 cm closer
+
+    def __post_init__(self) -> None:
+        if self.goal_radius_m <= 0 or self.stall_steps < 1:
+            raise ValueError("goal_radius_m must be positive and stall_steps ≥ 1")
+
+
+@dataclass
+class Goal:
+    """Where the vehicle is flying and why: the path, the heading to take at its end and the target cells.
+
+    ``target_cells`` are flat indices of 0.20 m cells; the goal is achieved once too few of them are frontiers
+    (all of them gone for a single cell, ``done_fraction`` of them for a cluster). A goal whose vehicle arrives
+    (or gets stuck) with the target still a frontier *fails*: see :meth:`GoalPlanner.on_failure`.
+    """
+
+    path_xy_m: np.ndarray
+    yaw_rad: float
+    target_cells: np.ndarray
+    done_fraction: float = 1.0
+    best_remaining_m: float = math.inf  # progress bookkeeping: closest approach to the path's end …
+    steps_since_progress: int = 0  # … steps since it last improved by 5 cm …
+    hovers: int = 0  # … and hovers in a row (the follower's answer when it cannot get closer)
+
+    def inherit_progress(self, previous: Goal | None) -> None:
+        """Keep the progress bookkeeping of ``previous`` if it led to the same place (a replan that changed
+        nothing must not reset the stall detection)."""
+        if previous is not None and np.hypot(*(previous.path_xy_m[-1] - self.path_xy_m[-1])) < 0.15:
+            self.best_remaining_m = previous.best_remaining_m
+            self.steps_since_progress = previous.steps_since_progress
+            self.hovers = previous.hovers
+
+
+class View:
+    """What a planner derives from the observed maps at one step; the graph is built only if a planner asks."""
+
+    def __init__(self, maps: ObservedMaps, pose: Pose, frontier: np.ndarray, config: PlannerConfig) -> None:
+        self.maps = maps
+        self.frontier = frontier  # bool on the 0.20 m grid, dropped targets removed
+        self.free = FreeSpace.from_codes(maps.high, maps.high_grid)
+        self.traversable = Traversable.from_free_space(
+            self.free, config.follow.safe_distance_m, pose[:2], config.graph.factor
+        )
+        self._graph_config = config.graph
+
+    @cached_property
+    def graph(self) -> PlanningGraph:
+        return PlanningGraph.from_traversable(self.traversable, self._graph_config)
+
+
+class GoalPlanner:
+    """The loop both frontier planners share: keep a :class:`Goal`, follow it, replan on events.
+
+    Subclasses implement :meth:`select_goal`. :meth:`act` returns the next action id, or ``None`` when no
+    frontier is reachable any more (exploration is over for this planner).
+    """
+
+    def __init__(self, config: PlannerConfig = PlannerConfig(), table: ActionTable | None = None) -> None:
+        self.config = config
+        self.table = table if table is not None else load_action_table()
+        self.replans = 0
+        self._goal: Goal | None = None
+        self._dropped: np.ndarray | None = None  # bool on the 0.20 m grid
+        self._spin_steps_left: int | None = None  # None: not spinning
+
+    def reset(self) -> None:
+        """Forget the goal and the dropped targets (a new flight)."""
+        self._goal = None
+        self._dropped = None
+        self._spin_steps_left = None
+        self.replans = 0
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def view(self, maps: ObservedMaps, pose: Pose) -> View:
+        """This step's free space, traversable cells and frontier (less the dropped targets)."""
+        if self._dropped is None or self._dropped.shape != maps.low.shape:
+            self._dropped = np.zeros(maps.low.shape, dtype=bool)
+        return View(maps, pose, frontier_mask(maps.low) & ~self._dropped, self.config)
+
+    def act(self, maps: ObservedMaps, pose: Pose, previous_action: int) -> int | None:
+        view = self.view(maps, pose)
+        for _ in range(3):  # a new goal may fail at once (reached, target unseen): then take the next one
+            goal = self._goal
+            status = "replan" if goal is None else self.status(goal, view, pose)
+            if status == "failed":
+                assert goal is not None
+                self._goal = self.on_failure(goal, view, pose)
+                status = "replan" if self._goal is None else "ok"
+            if status == "replan":
+                self.replans += 1
+                self._goal = self.select_goal(view, pose)
+                if self._goal is None:
+                    break
+                self._goal.inherit_progress(goal)
+            goal = self._goal
+            assert goal is not None
+            action = choose_action(
+                self.table, pose, previous_action, goal.path_xy_m, view.free, self.config.follow, goal.yaw_rad
+            )
+            goal.hovers = goal.hovers + 1 if action == Action.HOVER else 0
+            if action is not None and goal.hovers <= _MAX_HOVERS:
+                self._spin_steps_left = None
+                return action
+            self._goal = self.on_failure(goal, view, pose)  # arrived or stuck, and the target is still a frontier
+        return self._spin(view, pose, previous_action)
+
+    def status(self, goal: Goal, view: View, pose: Pose) -> str:
+        """``"ok"`` to keep flying ``goal``, ``"replan"`` (target seen, path blocked) or ``"failed"`` (stalled)."""
+        if view.frontier.flat[goal.target_cells].mean() <= 1.0 - goal.done_fraction:
+            return "replan"
+        if not view.traversable.contains_path(goal.path_xy_m):
+            return "replan"
+        end = goal.path_xy_m[-1]
+        remaining = math.hypot(end[0] - pose[0], end[1] - pose[1])
+        if remaining < goal.best_remaining_m - 0.05:
+            goal.best_remaining_m, goal.steps_since_progress = remaining, 0
+        else:
+            goal.steps_since_progress += 1
+        return "failed" if goal.steps_since_progress > self.config.stall_steps else "ok"
+
+    def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
+        """What to do when ``goal`` failed: drop its target (it cannot be seen from where the graph leads) and
+        return the next goal, or ``None`` to select one."""
+        self._drop(goal, view)
+        return None
+
+    def _drop(self, goal: Goal, view: View) -> None:
+        """Stop targeting the goal's cells and the frontier cells next to them (seen from nowhere reachable)."""
+        assert self._dropped is not None
+        targets = np.zeros(view.frontier.shape, dtype=np.uint8)
+        targets.flat[goal.target_cells] = 1
+        near = cv2.dilate(targets, np.ones((3, 3), np.uint8)).astype(bool)
+        self._dropped |= near & view.frontier
+
+    def _spin(self, view: View, pose: Pose, previous_action: int) -> int | None:
+        """Turn a full circle in place (12 turns of 30°) before declaring that nothing is left to explore."""
+        if self._spin_steps_left is None:
+            self._spin_steps_left = _FULL_TURN_STEPS
+        if self._spin_steps_left == 0:
+            return None  # stays done until a goal shows up again
+        self._spin_steps_left -= 1
+        here = np.array([pose[:2]])
+        action = choose_action(
+            self.table, pose, previous_action, here, view.free, self.config.follow, pose[2] + math.pi / 2
+        )
+        return 0 if action is None else action
+
+
+def goal_candidates(view: View, frontier: np.ndarray, goal_radius_m: float) -> np.ndarray:
+    """Node ids whose planning cell lies within ``goal_radius_m`` of a cell of ``frontier`` (0.20 m grid)."""
+    graph, low_grid = view.graph, view.maps.low_grid
+    up = resolution_factor(graph.grid.resolution_m, low_grid.resolution_m)
+    fine = np.repeat(np.repeat(frontier, up, axis=0), up, axis=1)[: graph.grid.shape[0], : graph.grid.shape[1]]
+    radius = int(math.floor(goal_radius_m / graph.grid.resolution_m))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    near = cv2.dilate(fine.astype(np.uint8), disk, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    nodes = graph.node_of[near]
+    return nodes[nodes >= 0]
+
+
+def nearest_cell(grid: GridSpec, mask: np.ndarray, xy_m: np.ndarray) -> int:
+    """Flat index of the cell of ``mask`` (on ``grid``) whose centre is nearest to ``xy_m``."""
+    flat = np.flatnonzero(mask)
+    x, y = grid.center_of(*np.divmod(flat, grid.shape[1]))
+    return int(flat[np.argmin(np.hypot(x - xy_m[0], y - xy_m[1]))])
+
+
+def nearest_frontier_goal(view: View, pose: Pose, frontier: np.ndarray, goal_radius_m: float) -> Goal | None:
+    """Goal at the graph node nearest to the vehicle among those within ``goal_radius_m`` of ``frontier``,
+    facing the frontier cell nearest to it; ``None`` if no such node is reachable."""
+    start = view.graph.node_at(*pose[:2])
+    candidates = goal_candidates(view, frontier, goal_radius_m)
+    if start < 0 or len(candidates) == 0:
+        return None
+    for limit in (_NEARBY_M, np.inf):  # most frontiers are near: search the neighbourhood first
+        cost, predecessors = view.graph.search([start], limit)
+        reachable = candidates[np.isfinite(cost[0, candidates])]
+        if len(reachable):
+            break
+    else:
+        return None
+    goal_node = int(reachable[np.argmin(cost[0, reachable])])
+    path = view.graph.path_xy_m(predecessors[0], goal_node)
+    low_grid = view.maps.low_grid
+    target = nearest_cell(low_grid, frontier, path[-1])
+    tx, ty = low_grid.center_of(*divmod(target, low_grid.shape[1]))
+    return Goal(path, math.atan2(float(ty) - path[-1, 1], float(tx) - path[-1, 0]), np.array([target]))
+
+
+class NearestFrontier(GoalPlanner):
+    """Yamauchi's frontier explorer: always fly to the frontier nearest along the planning graph."""
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        if not view.frontier.any():
+            return None
+        return nearest_frontier_goal(view, pose, view.frontier, self.config.goal_radius_m)

@@ -1,0 +1,155 @@
+"""The exploration benchmark (edge_explorer.bench.explore and `edge-explorer bench explore`)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from edge_explorer.bench import explore
+from edge_explorer.cli import main
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.world.plan import save_plan_json
+from edge_explorer.world.raster import rasterize
+from tests.conftest import two_room_plan
+
+
+def occupied_predictor(window: np.ndarray) -> np.ndarray:
+    """Test double of a map predictor: everything it is asked about is occupied."""
+    return np.ones(window.shape, dtype=np.float32)
+
+
+@pytest.fixture(scope="module")
+def rooms():
+    return rasterize(two_room_plan(), 0.05)
+
+
+def test_runs_share_the_start_and_differ_by_noise(rooms):
+    specs = explore.plan_specs([rooms], ["frontier", "fuel"], runs=3, seed=7)
+    assert len(specs) == 6
+    assert len({s.start_pose for s in specs}) == 1
+    assert len({s.seed for s in specs}) == 3  # one noise seed per run, the same for every method
+    assert explore.start_pose(rooms, 7) == specs[0].start_pose  # from the seed and the name only
+    assert explore.start_pose(rooms, 8) != specs[0].start_pose
+    with pytest.raises(EdgeExplorerError, match="--predictor"):
+        explore.plan_specs([rooms], ["frontier+pred"], runs=1, seed=0)
+    with pytest.raises(EdgeExplorerError, match="unknown method"):
+        explore.parse_methods("frontier,nbv")
+
+
+def fake_record(plan, method, run, path_at, collisions=0, steps=10):
+    return {
+        "spec": {"plan": plan, "method": method, "run": run},
+        "ending": "goal",
+        "steps": steps,
+        "collisions": collisions,
+        "final_coverage": 0.96,
+        "final_correct_coverage": 0.9,
+        "path_at_coverage_m": path_at,
+        "path_at_correct_coverage_m": None,
+        "planner_s": 0.01,
+        "curves": {"coverage": [0.1, 0.5, 0.96], "correct_coverage": [0.1, 0.4, 0.9], "path_length_m": [0, 1, 2]},
+    }
+
+
+def test_summary_is_table_one():
+    records = [
+        fake_record("A", "frontier", 0, 10.0),
+        fake_record("A", "frontier", 1, 14.0, collisions=2),
+        fake_record("A", "frontier", 2, None),
+        fake_record("B", "frontier", 0, 20.0),
+    ]
+    summary = explore.summarize(records, ["frontier"])
+    a = summary["plans"]["A"]["frontier"]
+    assert a["path_at_coverage_m"] == {"min": 10.0, "max": 14.0, "avg": 12.0, "std": 2.0}
+    assert (a["reached_coverage"], a["runs"], a["collisions"]) == (2, 3, 2)
+    assert a["success_rate"] == pytest.approx(1 / 3)  # run 1 collided, run 2 never reached 95 %
+    assert summary["all"]["frontier"]["path_at_coverage_m"]["avg"] == pytest.approx(44 / 3)
+    table = explore.markdown_table(summary, ["frontier"])
+    assert "| A | frontier | 10.0 / 14.0 / 12.0 / 2.0 | 2/3 |" in table and "all (2 plans)" in table
+    assert [f["run"] for f in explore.failures(records)] == [1, 2]
+
+
+def test_mean_curves_hold_the_final_value():
+    short = fake_record("A", "fuel", 0, 1.0)
+    long = fake_record("A", "fuel", 1, 1.0)
+    long["curves"] = {
+        "coverage": [0.0, 0.2, 0.4, 0.6, 0.8],
+        "correct_coverage": [0.0] * 5,
+        "path_length_m": [0.0, 1.0, 2.0, 3.0, 4.0],
+    }
+    curves = explore.mean_curves([short, long], step_m=1.0)
+    assert curves["path_m"] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert curves["coverage"]["mean"] == pytest.approx([0.05, 0.35, 0.68, 0.78, 0.88])
+
+
+@pytest.mark.slow
+def test_benchmark_runs_and_resumes(rooms, tmp_path, monkeypatch):
+    config = explore.BenchConfig(max_steps=300)
+    specs = explore.plan_specs(
+        [rooms],
+        ["frontier", "fuel+pred"],
+        runs=2,
+        seed=1,
+        config=config,
+        predictor="tests.bench.test_explore:occupied_predictor",
+    )
+    records = explore.run_benchmark([rooms], specs, workers=1, out_dir=tmp_path)
+    assert len(list(tmp_path.glob("*.json"))) == 4
+    for record in records:
+        assert record["collisions"] == 0 and record["path_at_coverage_m"] is not None
+        curves = record["curves"]
+        assert len(curves["coverage"]) == len(curves["path_length_m"]) == record["steps"] + 1
+    predicted = [r for r in records if r["spec"]["method"] == "fuel+pred"]
+    for r in predicted:  # the predictor claims everything at once; correct coverage still needs the flight
+        assert r["path_at_coverage_m"] == 0.0 and r["curves"]["correct_coverage"][0] < 0.9 and r["steps"] > 0
+
+    def must_not_fly(*args, **kwargs):
+        raise AssertionError("a recorded run was flown again")
+
+    monkeypatch.setattr(explore, "run_episode", must_not_fly)
+    assert explore.run_benchmark([rooms], specs, workers=1, out_dir=tmp_path) == json.loads(json.dumps(records))
+    changed = explore.plan_specs([rooms], ["frontier"], runs=1, seed=2, config=config)
+    with pytest.raises(AssertionError, match="flown again"):  # another seed: not the recorded run
+        explore.run_benchmark([rooms], changed, workers=1, out_dir=tmp_path)
+
+
+@pytest.mark.slow
+def test_cli_writes_table_json_and_figure(tmp_path, capsys):
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    out = tmp_path / "bench.json"
+    argv = [
+        "bench",
+        "explore",
+        "--plans",
+        str(plan),
+        "--methods",
+        "frontier,fuel",
+        "--runs",
+        "2",
+        "--workers",
+        "2",
+        "--max-steps",
+        "300",
+        "--json",
+        str(out),
+        "--plot",
+        str(tmp_path / "fig.png"),
+        "--markdown",
+        str(tmp_path / "table.md"),
+    ]
+    assert main(argv) == 0
+    report = json.loads(out.read_text())
+    assert report["methods"] == ["frontier", "fuel"] and len(report["runs"]) == 4
+    assert set(report["summary"]["plans"]["two-rooms"]) == {"frontier", "fuel"}
+    assert set(report["curves"]["two-rooms"]["fuel"]) == {"path_m", "coverage", "correct_coverage"}
+    assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| two-rooms | fuel |" in capsys.readouterr().out
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    assert main(["bench", "explore", "--methods", "frontier+pred", "--plans", "A"]) == 2
+    assert "--predictor" in capsys.readouterr().err
+    assert main(["bench", "explore", "--methods", "fuel+pred", "--predictor", "no.such.module:f"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot load" in err

@@ -1,0 +1,69 @@
+"""Frontiers, the planning graph and Nearest Frontier (edge_explorer.plan.frontier)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from edge_explorer.plan.follow import FollowConfig, FreeSpace
+from edge_explorer.plan.frontier import GraphConfig, NearestFrontier, PlanningGraph, frontier_mask
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN
+from edge_explorer.world.raster import rasterize
+from tests.conftest import two_room_plan
+
+
+@pytest.fixture(scope="module")
+def rooms():
+    return rasterize(two_room_plan(), 0.05)
+
+
+def test_frontier_cells_are_free_cells_next_to_unknown():
+    codes = np.full((6, 7), UNKNOWN, dtype=np.int8)
+    codes[1:5, 1:4] = FREE
+    codes[1:5, 4] = OCCUPIED  # a wall east of the free block: no frontier there
+    expected = np.zeros_like(codes, dtype=bool)
+    expected[1, 1:4] = expected[4, 1:4] = True  # north and south rows border unknown
+    expected[1:5, 1] = True  # west column too
+    np.testing.assert_array_equal(frontier_mask(codes), expected)
+    assert not frontier_mask(np.full((3, 3), FREE, dtype=np.int8)).any()  # beyond the edge is not unknown
+
+
+def test_path_through_the_door_keeps_off_the_walls(rooms):
+    free = FreeSpace.from_codes(rooms.truth_codes(), rooms.grid)
+    safe = FollowConfig().safe_distance_m
+    graph = PlanningGraph.build(free, safe, (1.0, 0.6), GraphConfig())
+    assert graph.grid.resolution_m == pytest.approx(0.10)
+    start, goal = graph.node_at(1.0, 0.6), graph.node_at(3.0, 0.6)
+    cost, predecessors = graph.search([start])
+    path = graph.path_xy_m(predecessors[0], goal)
+    assert np.hypot(*(path[0] - (1.0, 0.6))) < 0.08 and np.hypot(*(path[-1] - (3.0, 0.6))) < 0.08  # cell centres
+    crossing = path[np.abs(path[:, 0] - 2.0) < 0.1]
+    assert len(crossing) and ((crossing[:, 1] > 1.0) & (crossing[:, 1] < 2.0)).all()  # through the door
+    assert all(free.clearance_at(x, y) >= safe for x, y in path)
+    length = np.hypot(*np.diff(path, axis=0).T).sum()
+    assert length <= cost[0, goal] <= 3.0 * length  # the clearance term only ever adds to the length
+
+
+def test_unknown_space_is_not_traversable(rooms):
+    codes = rooms.truth_codes()
+    codes[:, rooms.grid.cell_of(2.5, 0.0)[1] :] = UNKNOWN  # the east room unseen
+    graph = PlanningGraph.build(FreeSpace.from_codes(codes, rooms.grid), 0.325, (1.0, 1.5), GraphConfig())
+    assert graph.node_at(3.0, 1.5) == -1 and graph.node_at(1.0, 1.5) >= 0
+
+
+@pytest.mark.slow
+def test_nearest_frontier_explores_the_two_rooms(rooms):
+    env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=400))
+    _, info = env.reset(seed=3, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
+    planner = NearestFrontier(table=env.table)
+    previous = 0
+    for _ in range(400):
+        action = planner.act(env.maps, env.pose, previous)
+        if action is None or info["coverage"] >= 0.95:
+            break
+        _, _, _, _, info = env.step(action)
+        assert not info["collided"]
+        previous = action
+    assert info["coverage"] >= 0.95
+    assert env.pose[0] > 2.0  # it went through the door to see the east room
