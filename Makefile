@@ -18,12 +18,12 @@ $(VENV)/.stamp-core: pyproject.toml | $(BIN)/python
 # MAVProxy is a real ground station for the loopback test; its full install would replace opencv-headless and pull
 # vtk, so it goes in without its dependencies (pyserial is the only one it needs headless).
 $(VENV)/.stamp-test: pyproject.toml | $(BIN)/python
-	$(PIP) -e '.[dev]'
+	$(PIP) -e '.[dev,bench,train]'
 	$(PIP) --no-deps mavproxy==1.8.75 pyserial
 	touch $@
 
 $(VENV)/.stamp-all: pyproject.toml | $(BIN)/python
-	$(PIP) -e '.[dev,train,export]'
+	$(PIP) -e '.[dev,bench,train,export]'
 	touch $@
 
 demo: $(VENV)/.stamp-core
