@@ -27,8 +27,7 @@ $(VENV)/.stamp-all: pyproject.toml | $(BIN)/python
 	touch $@
 
 demo: $(VENV)/.stamp-core
-	@echo "demo: the daemon is not built yet; flying the training simulator on bundled building A instead"
-	$(BIN)/edge-explorer sim show --plan A --steps 150 --png runs/demo/episode.png
+	$(BIN)/edge-explorer run
 
 test: $(VENV)/.stamp-test
 	$(BIN)/python -m pytest -q

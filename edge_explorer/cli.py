@@ -22,7 +22,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "edge_explorer.world.cli",
     "edge_explorer.sim.cli",
     "edge_explorer.mapping.cli",
+    "edge_explorer.learn.cli",
     "edge_explorer.bench.cli",
+    "edge_explorer.runtime.cli",
 )
 
 EXIT_USAGE = 2

@@ -1,0 +1,375 @@
+"""Training the map predictor: weighted BCE, AdamW, cosine schedule, checkpoints that resume exactly.
+
+Read top to bottom, :func:`train` is the whole loop (CleanRL style): load the shards, build the U-Net, then for each
+step take the next batch of a per-epoch permutation, augment, compute the loss, step AdamW, and every so often log,
+validate and checkpoint.
+
+Loss: per-cell BCE on the logits, weighted by :func:`edge_explorer.predict.encoding.loss_weights` — unobserved
+interior cells count 1, unobserved exterior cells (target "occupied") ``exterior_weight``, observed cells
+``observed_weight`` (default 0: the observation always overrides the prediction, so learning to copy it is wasted
+capacity) — summed and divided by the batch's total weight. ``init_weights`` starts from another run's checkpoint
+(fine-tuning).
+
+Validation (every ``val_every_steps``): weighted BCE and the paper's F1 (DESIGN.md §7) of the observed map plus the
+dynamically thresholded prediction (§5), over ``val_samples`` fixed samples of the val split, inside the ego window
+(which holds the whole building). The model with the best mean val F1 is kept as ``best.safetensors``.
+
+Run folder ``OUT``::
+
+    config.toml               the config this run was started with (a resume must use the same)
+    checkpoint.safetensors    model weights (with BatchNorm) of the last checkpoint
+    optimizer.safetensors     AdamW moments; its param groups live in state.json
+    state.json                step, epoch, best val F1, samples seen, wall time, written last
+    best.safetensors          the best model by val F1 (BatchNorm folded: the shippable form)
+    train_log.csv, val_log.csv
+
+Data order is a function of (seed, epoch) and augmentation of (seed, epoch, sample), so a resumed run continues
+with the very batches the uninterrupted run would have seen. No pickles: tensors in safetensors, the rest in JSON.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import shutil
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
+from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
+from edge_explorer.mapping.metrics import map_metrics
+from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
+from edge_explorer.world.grid import UNKNOWN
+
+
+@dataclass(frozen=True)
+class PredictorTrainConfig:
+    """Everything a training run depends on; loaded from TOML by :func:`load_config` (flat keys)."""
+
+    train_data: str = "data/predictor/train"
+    val_data: str = "data/predictor/val"
+    channels: tuple[int, ...] = (12, 24, 48, 96, 128)
+    head_channels: int = 8
+    exterior_weight: float = 0.1
+    observed_weight: float = 0.0
+    augment: bool = True
+    init_weights: str = ""  # a checkpoint.safetensors to start from (fine-tuning); "" = random initialisation
+    batch_size: int = 16
+    learning_rate: float = 2e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 200
+    total_steps: int = 5000
+    seed: int = 0
+    threads: int = 1
+    log_every_steps: int = 25
+    val_every_steps: int = 500
+    val_samples: int = 512
+    checkpoint_every_steps: int = 100
+
+    def __post_init__(self) -> None:
+        positive = (
+            "head_channels",
+            "batch_size",
+            "total_steps",
+            "threads",
+            "log_every_steps",
+            "val_every_steps",
+            "val_samples",
+            "checkpoint_every_steps",
+        )
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise EdgeExplorerError(f"config: {name} must be ≥ 1, got {getattr(self, name)}")
+        if self.learning_rate <= 0 or self.weight_decay < 0 or self.warmup_steps < 0:
+            raise EdgeExplorerError("config: learning_rate must be > 0, weight_decay and warmup_steps ≥ 0")
+        if self.exterior_weight < 0 or self.observed_weight < 0:
+            raise EdgeExplorerError("config: exterior_weight and observed_weight must be ≥ 0")
+
+    @property
+    def unet(self) -> UNetConfig:
+        return UNetConfig(channels=self.channels, head_channels=self.head_channels)
+
+    @property
+    def weighting(self) -> LossWeighting:
+        return LossWeighting(self.exterior_weight, self.observed_weight)
+
+    def to_dict(self) -> dict:
+        return {**dataclasses.asdict(self), "channels": list(self.channels)}
+
+
+def config_from_dict(data: dict, source: str = "<config>") -> PredictorTrainConfig:
+    """A config from flat TOML keys; unknown keys and wrong types are errors that name the key."""
+    fields = {f.name: f for f in dataclasses.fields(PredictorTrainConfig)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise EdgeExplorerError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(fields)}")
+    values = {}
+    defaults = PredictorTrainConfig()
+    for key, value in data.items():
+        default = getattr(defaults, key)
+        if isinstance(default, tuple):
+            if not (isinstance(value, list) and all(isinstance(v, int) for v in value)):
+                raise EdgeExplorerError(f"{source}: {key} must be a list of integers, got {value!r}")
+            value = tuple(value)
+        elif isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        elif type(value) is not type(default):
+            raise EdgeExplorerError(f"{source}: {key} must be {type(default).__name__}, got {value!r}")
+        values[key] = value
+    try:
+        return PredictorTrainConfig(**values)
+    except ValueError as exc:
+        raise EdgeExplorerError(f"{source}: {exc}") from None
+
+
+def load_config(path: str | Path) -> PredictorTrainConfig:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise EdgeExplorerError(f"{path}: no such config file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise EdgeExplorerError(f"{path}: not valid TOML: {exc}") from None
+    return config_from_dict(data, str(path))
+
+
+def learning_rate(config: PredictorTrainConfig, step: int) -> float:
+    """Linear warm-up to ``learning_rate``, then cosine decay to zero at ``total_steps``."""
+    if step < config.warmup_steps:
+        return config.learning_rate * (step + 1) / config.warmup_steps
+    progress = (step - config.warmup_steps) / max(config.total_steps - config.warmup_steps, 1)
+    return 0.5 * config.learning_rate * (1.0 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def weighted_bce(logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Σ w·BCE(σ(logits), target) / Σ w over the batch."""
+    bce = F.binary_cross_entropy_with_logits(logits, target, reduction="none")
+    return (weight * bce).sum() / weight.sum().clamp_min(1e-6)
+
+
+def batch(dataset: PredictorDataset, indices: list[int], device: str) -> tuple[torch.Tensor, ...]:
+    """(input, target, weight) of ``indices``, stacked channels-last (faster convolutions on CPU and GPU)."""
+    items = [dataset[i] for i in indices]
+    return tuple(
+        torch.stack(column).to(device).contiguous(memory_format=torch.channels_last)
+        for column in zip(*items, strict=True)
+    )
+
+
+# ---- validation --------------------------------------------------------------------------------------------------
+COVERAGE_BINS = (0.0, 0.5, 0.8, 0.95, 1.01)
+
+
+@torch.no_grad()
+def validate(model: UNet, dataset: PredictorDataset, indices: list[int], batch_size: int, device: str) -> dict:
+    """Weighted BCE and F1 (observed + thresholded prediction, and observed only) over ``indices``."""
+    model.eval()
+    losses, f1, f1_observed, coverage = [], [], [], []
+    thresholds = ThresholdConfig()
+    for start in range(0, len(indices), batch_size):
+        chunk = indices[start : start + batch_size]
+        x, target, weight = batch(dataset, chunk, device)
+        logits = model.logits(x)
+        losses.append(weighted_bce(logits, target, weight).item())
+        probabilities = torch.sigmoid(logits)[:, 0].cpu().numpy()
+        for k, index in enumerate(chunk):
+            observed, truth = dataset.windows(index)
+            interior = truth != UNKNOWN
+            area_m2 = float(dataset.store.observed_area_m2[index])
+            thres = thresholded_map(probabilities[k], observed, area_m2, thresholds)
+            f1.append(map_metrics(observed, truth, interior, thres).f1)
+            observed_only = map_metrics(observed, truth, interior)
+            f1_observed.append(observed_only.f1)
+            coverage.append(observed_only.coverage)
+    model.train()
+    f1_arr, coverage_arr = np.array(f1), np.array(coverage)
+    result = {
+        "val_loss": float(np.mean(losses)),
+        "val_f1": float(f1_arr.mean()),
+        "val_f1_observed": float(np.mean(f1_observed)),
+    }
+    for lo, hi in zip(COVERAGE_BINS[:-1], COVERAGE_BINS[1:], strict=True):
+        in_bin = (coverage_arr >= lo) & (coverage_arr < hi)
+        result[f"val_f1_cov{lo:.2f}"] = float(f1_arr[in_bin].mean()) if in_bin.any() else None
+    return result
+
+
+# ---- checkpoints -------------------------------------------------------------------------------------------------
+@dataclass
+class TrainState:
+    step: int = 0
+    samples: int = 0  # training samples seen
+    train_set_size: int = 0  # a resume must see the same data
+    wall_s: float = 0.0
+    best_val_f1: float = -1.0
+    best_step: int = -1
+    last_val: dict | None = None
+
+
+def _replace_atomically(write, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def save_checkpoint(out: Path, model: UNet, optimizer: torch.optim.Optimizer, state: TrainState) -> None:
+    """Weights and AdamW moments as safetensors, then state.json (last, so it never points past the weights)."""
+    from safetensors.torch import save_file
+
+    opt = optimizer.state_dict()
+    moments = {f"{pid}.{key}": v.detach().cpu().contiguous() for pid, s in opt["state"].items() for key, v in s.items()}
+    _replace_atomically(lambda p: save_unet(model, p), out / "checkpoint.safetensors")
+    _replace_atomically(lambda p: save_file(moments, str(p)), out / "optimizer.safetensors")
+    payload = {**dataclasses.asdict(state), "param_groups": opt["param_groups"]}
+    _replace_atomically(lambda p: p.write_text(json.dumps(payload, indent=1)), out / "state.json")
+
+
+def load_checkpoint(out: Path, model: UNet, optimizer: torch.optim.Optimizer, device: str) -> TrainState:
+    from safetensors.torch import load_file
+
+    payload = json.loads((out / "state.json").read_text())
+    param_groups = payload.pop("param_groups")
+    model.load_state_dict(load_file(str(out / "checkpoint.safetensors"), device=device))
+    moments = load_file(str(out / "optimizer.safetensors"), device=device)
+    per_param: dict[int, dict] = {}
+    for name, tensor in moments.items():
+        pid, key = name.split(".", 1)
+        per_param.setdefault(int(pid), {})[key] = tensor
+    optimizer.load_state_dict({"state": per_param, "param_groups": param_groups})
+    return TrainState(**payload)
+
+
+def _append_csv(path: Path, row: dict) -> None:
+    new = not path.exists()
+    with path.open("a", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(row))
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
+
+
+# ---- the loop ----------------------------------------------------------------------------------------------------
+def train(
+    config: PredictorTrainConfig,
+    out: str | Path,
+    resume: bool = False,
+    device: str = "cpu",
+    config_path: str | Path | None = None,
+    max_steps: int | None = None,
+) -> TrainState:
+    """Train (or, with ``resume``, continue training) the predictor into ``out``; returns the final state.
+
+    ``max_steps`` stops after that many steps of this call (checkpointed), for time-boxed sessions.
+    """
+    from tqdm import tqdm
+
+    out = Path(out)
+    if device == "cuda" and not torch.cuda.is_available():
+        raise EdgeExplorerError("--device cuda: no CUDA device is available")
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    out.mkdir(parents=True, exist_ok=True)
+    saved_config = out / "config.json"
+    if resume:
+        if not (out / "state.json").exists():
+            raise EdgeExplorerError(f"{out}: nothing to resume (no state.json); drop --resume to start a run")
+        if config_from_dict(json.loads(saved_config.read_text()), str(saved_config)) != config:
+            raise EdgeExplorerError(f"{out}: the run was started with another config ({saved_config}); use it")
+    elif (out / "state.json").exists():
+        raise EdgeExplorerError(f"{out} already holds a run; pass --resume to continue it or choose a new --out")
+    else:
+        saved_config.write_text(json.dumps(config.to_dict(), indent=1))
+        if config_path is not None:
+            shutil.copyfile(config_path, out / "config.toml")
+
+    train_set = PredictorDataset(
+        load_shards(shard_paths(config.train_data)), config.weighting, config.augment, config.seed
+    )
+    val_set = PredictorDataset(load_shards(shard_paths(config.val_data)), config.weighting)
+    val_indices = np.linspace(0, len(val_set) - 1, min(config.val_samples, len(val_set))).astype(int).tolist()
+    steps_per_epoch = len(train_set) // config.batch_size
+    if steps_per_epoch == 0:
+        raise EdgeExplorerError(f"{len(train_set)} training samples are fewer than one batch of {config.batch_size}")
+
+    model = UNet(config.unet).to(device, memory_format=torch.channels_last)
+    if config.init_weights and not resume:
+        from safetensors.torch import load_file
+
+        model.load_state_dict(load_file(config.init_weights, device=device))
+    optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    state = load_checkpoint(out, model, optimizer, device) if resume else TrainState(train_set_size=len(train_set))
+    if state.train_set_size != len(train_set):
+        raise EdgeExplorerError(
+            f"{out}: the run trained on {state.train_set_size} samples, {config.train_data} now "
+            f"holds {len(train_set)}; resume with the same data or start a new run"
+        )
+    model.train()
+    stop_step = config.total_steps if max_steps is None else min(config.total_steps, state.step + max_steps)
+
+    bar = tqdm(total=stop_step, initial=state.step, unit="step", desc="train predictor")
+    running_loss, running_n = 0.0, 0
+    t_last = time.perf_counter()
+    while state.step < stop_step:
+        # the batch: position `step` of the permutation of epoch `step // steps_per_epoch`
+        epoch, position = divmod(state.step, steps_per_epoch)
+        train_set.set_epoch(epoch)
+        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed * 100_003 + epoch))
+        indices = order[position * config.batch_size : (position + 1) * config.batch_size].tolist()
+        x, target, weight = batch(train_set, indices, device)
+
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(config, state.step)
+        loss = weighted_bce(model.logits(x), target, weight)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+
+        state.step += 1
+        state.samples += len(indices)
+        now = time.perf_counter()
+        state.wall_s += now - t_last
+        t_last = now
+        running_loss += loss.item()
+        running_n += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
+
+        if state.step % config.log_every_steps == 0:
+            _append_csv(
+                out / "train_log.csv",
+                {
+                    "step": state.step,
+                    "epoch": epoch,
+                    "samples": state.samples,
+                    "lr": learning_rate(config, state.step - 1),
+                    "train_loss": running_loss / running_n,
+                    "wall_s": round(state.wall_s, 1),
+                },
+            )
+            running_loss, running_n = 0.0, 0
+        if state.step % config.val_every_steps == 0 or state.step == config.total_steps:
+            val = validate(model, val_set, val_indices, config.batch_size, device)
+            state.last_val = {"step": state.step, **val}
+            _append_csv(out / "val_log.csv", {"step": state.step, "samples": state.samples, **val})
+            tqdm.write(
+                f"step {state.step}: val loss {val['val_loss']:.4f}, F1 {val['val_f1']:.4f} "
+                f"(observed only {val['val_f1_observed']:.4f})"
+            )
+            if val["val_f1"] > state.best_val_f1:
+                state.best_val_f1, state.best_step = val["val_f1"], state.step
+                _replace_atomically(lambda p: save_unet(model.fused(), p), out / "best.safetensors")
+            t_last = time.perf_counter()  # validation time is not training time
+        if state.step % config.checkpoint_every_steps == 0 or state.step == stop_step:
+            save_checkpoint(out, model, optimizer, state)
+    bar.close()
+    return state

@@ -1,0 +1,146 @@
+"""Action → waypoint, and the safety check every waypoint passes before the daemon flies it (DESIGN.md §8).
+
+**Waypoint.** An action moves the vehicle by the shared action table's mean motion for (previous action, action)
+(:mod:`edge_explorer.sim.dynamics`, momentum included), from the pose the step starts at — the same motion the
+simulator trained the policy with. The trajectory reaches the waypoint after one step period at the action's
+*cruise* velocity (:func:`cruise_velocity`), so consecutive steps join as the table's vehicle model assumes.
+
+**Safety.** A waypoint is flown only if the straight motion from where the vehicle is (its odometry position) to the
+waypoint, and the drift of braking there (hover after the action, also from the table), stay on cells that are
+
+* observed FREE — **unknown space is not allowed**: the vehicle only flies where its camera has looked (the camera
+  looks along the direction of travel, so forward motions land in seen space; the frontier planner's follower uses
+  the same rule, so the fallback never proposes what this check refuses), and
+* at least ``safe_distance_m`` from every observed OCCUPIED cell — the robot radius plus the follower's margin, so
+  strictly outside the NON_FLIGHT band of the inflated 0.05 m map (the band is the cells within the robot radius).
+
+The map is :class:`~edge_explorer.plan.follow.FreeSpace` and the test its ``unsafe_mask`` with
+:func:`~edge_explorer.sim.dynamics.swept_path_blocked`: one definition of "safe" for the follower and the daemon.
+If the vehicle already stands closer to an obstacle than ``safe_distance_m`` (sensor noise, a gust), motions that
+do not bring it closer remain allowed, so it can fly out.
+
+**Fallback.** :meth:`WaypointPlanner.first_safe` takes candidate actions in order of preference (the policy's, the
+frontier planner's, hover) and returns the first safe one; when none is, it returns a *hold* — the current odometry
+position at rest, which is always allowed.
+
+**Going home.** :func:`path_home` plans the way back to the take-off point over the frontier planner's planning
+graph (observed free cells only); the daemon follows it with the six actions through the shared follower.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose
+from edge_explorer.plan.frontier import GraphConfig, PlanningGraph
+from edge_explorer.sim.dynamics import Action, ActionTable, body_to_map, swept_path_blocked
+
+HOLD = "hold"  # the source of a waypoint that keeps the vehicle where it is
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """Where one step ends: the map-frame pose and the velocity to arrive with (``(vx, vy, yaw rate)``).
+
+    ``action`` is the action whose motion this is (HOVER for a hold); ``source`` says who chose it (``policy``,
+    ``frontier``, ``home``, ``hover`` or ``hold``).
+    """
+
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    velocity: tuple[float, float, float]
+    action: int
+    source: str
+
+
+def action_pose(table: ActionTable, start: Pose, previous_action: int, action: int) -> Pose:
+    """The pose ``action`` reaches from ``start`` after ``previous_action``: the table's mean motion, in the map."""
+    return body_to_map(*start, *table.mean_step(previous_action, action))
+
+
+def cruise_velocity(table: ActionTable, action: int, yaw_rad: float) -> tuple[float, float, float]:
+    """(vx, vy, yaw rate) the vehicle carries at the end of ``action`` when facing ``yaw_rad``.
+
+    It is the action's steady state: the table's motion for the action repeated, (action, action), per step
+    period — 0.5 m/s along the heading for the forward actions, ±30°/s for the turns, nothing for hover.
+    """
+    dx, dy, dyaw = table.mean_step(action, action)
+    step_s = table.model.step_s
+    speed = math.hypot(dx, dy) / step_s
+    return speed * math.cos(yaw_rad), speed * math.sin(yaw_rad), dyaw / step_s
+
+
+@dataclass(frozen=True)
+class WaypointPlanner:
+    """Turns actions into safe waypoints over one step's observed high-res map (see the module docstring)."""
+
+    table: ActionTable
+    free: FreeSpace
+    safe_distance_m: float = FollowConfig().safe_distance_m
+
+    def is_safe(self, from_xy_m: tuple[float, float], pose: Pose, previous_action: int, action: int) -> bool:
+        """Whether flying ``action`` from the step-start ``pose`` is safe for a vehicle now at ``from_xy_m``.
+
+        Checked: the straight motion from ``from_xy_m`` to the action's end, and the braking drift after it.
+        """
+        return self._clear(self._unsafe(from_xy_m), from_xy_m, pose, previous_action, action)
+
+    def _unsafe(self, from_xy_m: tuple[float, float]) -> np.ndarray:
+        return self.free.unsafe_mask(from_xy_m[0], from_xy_m[1], self.safe_distance_m)
+
+    def _clear(
+        self, unsafe: np.ndarray, from_xy_m: tuple[float, float], pose: Pose, previous_action: int, action: int
+    ) -> bool:
+        end = action_pose(self.table, pose, previous_action, action)
+        brake = action_pose(self.table, end, action, Action.HOVER)
+        for a, b in ((tuple(from_xy_m), end[:2]), (end[:2], brake[:2])):
+            if a != b and swept_path_blocked(unsafe, self.free.grid, a, b):
+                return False
+        return True
+
+    def waypoint(self, pose: Pose, previous_action: int, action: int, source: str) -> Waypoint:
+        """The waypoint of ``action`` from the step-start ``pose`` (no safety check: see :meth:`first_safe`)."""
+        x, y, yaw = action_pose(self.table, pose, previous_action, action)
+        return Waypoint(x, y, yaw, cruise_velocity(self.table, action, yaw), int(action), source)
+
+    def first_safe(
+        self,
+        from_xy_m: tuple[float, float],
+        pose: Pose,
+        previous_action: int,
+        candidates: Iterable[tuple[str, int | None]],
+    ) -> Waypoint:
+        """The first safe waypoint among ``candidates`` — (source, action) pairs, best first, evaluated lazily so
+        a fallback is only computed when needed; a ``None`` action is skipped. A hold at ``from_xy_m`` (facing
+        ``pose``'s heading) when none is safe."""
+        unsafe = self._unsafe(from_xy_m)
+        for source, action in candidates:
+            if action is not None and self._clear(unsafe, from_xy_m, pose, previous_action, action):
+                return self.waypoint(pose, previous_action, action, source)
+        return hold_waypoint((from_xy_m[0], from_xy_m[1], pose[2]))
+
+
+def hold_waypoint(pose: Pose) -> Waypoint:
+    """Stay at ``pose``, at rest."""
+    return Waypoint(pose[0], pose[1], pose[2], (0.0, 0.0, 0.0), int(Action.HOVER), HOLD)
+
+
+def path_home(
+    free: FreeSpace, from_xy_m: tuple[float, float], home_xy_m: tuple[float, float], safe_distance_m: float
+) -> np.ndarray | None:
+    """(K, 2) path from ``from_xy_m`` to the reachable planning cell nearest ``home_xy_m``, through observed free
+    space at least ``safe_distance_m`` from obstacles; ``None`` if the vehicle's own cell has no way out."""
+    graph = PlanningGraph.build(free, safe_distance_m, from_xy_m, GraphConfig())
+    start = graph.node_at(*from_xy_m)
+    if start < 0:
+        return None
+    cost, predecessors = graph.search([start])
+    reachable = np.flatnonzero(np.isfinite(cost[0]))
+    xy = graph.node_xy_m(reachable)
+    goal = int(reachable[np.argmin(np.hypot(xy[:, 0] - home_xy_m[0], xy[:, 1] - home_xy_m[1]))])
+    return graph.path_xy_m(predecessors[0], goal)

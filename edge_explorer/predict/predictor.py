@@ -1,0 +1,71 @@
+"""The map predictor at run time: observed low-res map in, occupancy probabilities on the same map out (no torch).
+
+One prediction (DESIGN.md §5): the 0.20 m observed map is cut to the north-up ego window around the robot's cell
+(:func:`~edge_explorer.mapping.ego.pad_shift`), encoded as in training
+(:func:`~edge_explorer.predict.encoding.encode_windows`), run through an exported model on whichever backend the
+chain loaded it on (:func:`~edge_explorer.backends.chain.load_model`: Edge TPU → LiteRT CPU → onnxruntime CPU, each
+artifact checked against its model card first), decoded (:func:`~edge_explorer.predict.encoding.decode_probabilities`)
+and put back on the map (:func:`~edge_explorer.mapping.ego.unshift`; cells the window does not cover are NaN,
+which thresholding reads as UNKNOWN).
+
+The window size comes from the model: its one input must be ``[1, 2, S, S]`` (batch may be dynamic) and its one
+output hold ``S × S`` probabilities. A :class:`PredictorRuntime` is also the ``window → probabilities`` callable
+the simulator and the benchmark take (:data:`edge_explorer.sim.env.Predictor`), so an exported model can be flown
+in the training simulator unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from edge_explorer.backends.chain import LoadedModel
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.mapping.ego import Cell, pad_shift, unshift
+from edge_explorer.predict.encoding import INPUT_CHANNELS, decode_probabilities, encode_windows
+
+
+class PredictorModelError(EdgeExplorerError):
+    """The loaded model does not have the predictor's input and output layout."""
+
+
+class PredictorRuntime:
+    """An exported map predictor ready to run (see the module docstring)."""
+
+    def __init__(self, model: LoadedModel) -> None:
+        inputs, outputs = model.backend.inputs, model.backend.outputs
+        if len(inputs) != 1 or len(outputs) != 1:
+            raise PredictorModelError(
+                f"{model.name}: a predictor has one input and one output, this model has "
+                f"{[s.name for s in inputs]} → {[s.name for s in outputs]}"
+            )
+        shape = inputs[0].shape
+        square = len(shape) == 4 and shape[2] == shape[3] and shape[2] >= 1
+        if not square or shape[0] not in (1, -1) or shape[1] != INPUT_CHANNELS:
+            raise PredictorModelError(
+                f"{model.name}: predictor input {inputs[0].name!r} must be [1, {INPUT_CHANNELS}, S, S] "
+                f"(encoding.encode_windows), got {list(shape)}"
+            )
+        self.window_cells = int(shape[2])
+        out_size = math.prod(d for d in outputs[0].shape if d != -1)
+        if out_size != self.window_cells**2:
+            raise PredictorModelError(
+                f"{model.name}: output {outputs[0].name!r} {list(outputs[0].shape)} is not one "
+                f"{self.window_cells}×{self.window_cells} probability map"
+            )
+        self.model = model
+        self._input_name = inputs[0].name
+        self._output_name = outputs[0].name
+
+    def __call__(self, window: np.ndarray) -> np.ndarray:
+        """float32 (S, S) occupancy probabilities of one int8 north-up ego window (S, S)."""
+        if window.shape != (self.window_cells, self.window_cells):
+            raise ValueError(f"window shape {window.shape}, the model takes {self.window_cells}×{self.window_cells}")
+        batch = encode_windows(window)[np.newaxis]
+        return decode_probabilities(self.model.run({self._input_name: batch})[self._output_name])
+
+    def predict(self, low_codes: np.ndarray, robot_cell: Cell) -> np.ndarray:
+        """float32 probabilities on the grid of ``low_codes`` (0.20 m observed map), NaN outside the window."""
+        window = pad_shift(low_codes, robot_cell, self.window_cells)
+        return unshift(self(window), robot_cell, low_codes.shape, fill=np.float32(np.nan))

@@ -1,0 +1,118 @@
+"""Predictor training: TOML config, a 2-step run on a tiny dataset, exact resume, refusals."""
+
+import json
+
+import pytest
+from safetensors.torch import load_file
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn.train_predictor import PredictorTrainConfig, learning_rate, load_config, train
+from edge_explorer.learn.unet import load_unet
+
+
+def _config(shard_dir, **overrides) -> PredictorTrainConfig:
+    values = dict(
+        train_data=str(shard_dir / "train"),
+        val_data=str(shard_dir / "val"),
+        channels=(4, 8),
+        head_channels=2,
+        batch_size=2,
+        total_steps=2,
+        warmup_steps=1,
+        val_every_steps=2,
+        val_samples=2,
+        checkpoint_every_steps=1,
+        log_every_steps=1,
+    )
+    return PredictorTrainConfig(**{**values, **overrides})
+
+
+def test_default_config_file_loads():
+    config = load_config("edge_explorer/learn/configs/predictor.toml")
+    assert config.channels == (12, 24, 48, 96, 128) and config.exterior_weight == 0.1
+
+
+def test_config_errors_name_the_key(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("batch_sise = 4\n")
+    with pytest.raises(EdgeExplorerError, match="batch_sise"):
+        load_config(path)
+    path.write_text('batch_size = "4"\n')
+    with pytest.raises(EdgeExplorerError, match="batch_size must be int"):
+        load_config(path)
+    path.write_text("learning_rate = 1\nchannels = [4, 8]\n")
+    assert load_config(path).learning_rate == 1.0 and load_config(path).channels == (4, 8)
+
+
+def test_schedule_warms_up_then_decays_to_zero():
+    config = PredictorTrainConfig(warmup_steps=10, total_steps=110, learning_rate=1.0)
+    assert learning_rate(config, 0) == pytest.approx(0.1)
+    assert learning_rate(config, 10) == pytest.approx(1.0)
+    assert learning_rate(config, 60) == pytest.approx(0.5)
+    assert learning_rate(config, 110) == pytest.approx(0.0)
+
+
+def test_two_steps_in_one_go_equal_one_step_and_a_resume(shard_dir, tmp_path):
+    config = _config(shard_dir)
+    straight = train(config, tmp_path / "straight")
+    assert straight.step == 2 and straight.samples == 4 and straight.last_val["step"] == 2
+    split = tmp_path / "split"
+    assert train(config, split, max_steps=1).step == 1
+    with pytest.raises(EdgeExplorerError, match="--resume"):
+        train(config, split)
+    resumed = train(config, split, resume=True)
+    assert resumed.step == 2
+    a = load_file(str(tmp_path / "straight" / "checkpoint.safetensors"))
+    b = load_file(str(split / "checkpoint.safetensors"))
+    assert all(bool((a[k] == b[k]).all()) for k in a)
+    state = json.loads((split / "state.json").read_text())
+    assert state["step"] == 2 and "param_groups" in state
+    assert not load_unet(split / "best.safetensors").config.batchnorm  # shipped folded
+    assert (split / "train_log.csv").read_text().count("\n") == 3  # header + 2 steps
+
+
+def test_resume_refuses_another_config(shard_dir, tmp_path):
+    train(_config(shard_dir), tmp_path, max_steps=1)
+    with pytest.raises(EdgeExplorerError, match="another config"):
+        train(_config(shard_dir, learning_rate=1e-2), tmp_path, resume=True)
+    with pytest.raises(EdgeExplorerError, match="nothing to resume"):
+        train(_config(shard_dir), tmp_path / "new", resume=True)
+
+
+def test_ship_copies_the_best_weights_with_a_card(shard_dir, tmp_path):
+    from edge_explorer.learn.predictor_card import sha256_of, ship_predictor
+
+    run = tmp_path / "run"
+    train(_config(shard_dir), run)
+    sha = sha256_of(run / "best.safetensors")
+    report = {
+        "model_sha256": sha,
+        "plans": "x",
+        "n_plans": 1,
+        "explorer": "e",
+        "seed": 0,
+        "thresholds": {},
+        "levels": {"0.98": {"f1": 0.95, "n": 1}},
+    }
+    (tmp_path / "eval.json").write_text(json.dumps(report))
+    card = ship_predictor(run, tmp_path / "models", {"test": tmp_path / "eval.json"}, "edge-explorer train …")
+    assert sha256_of(tmp_path / "models" / card["weights"]) == card["sha256"] == sha
+    assert card["architecture"]["macs"] > 0 and card["training"]["steps"] == 2
+    assert card["metrics"]["test"]["levels"]["0.98"]["f1"] == 0.95
+    assert json.loads((tmp_path / "models" / "card.json").read_text())["sha256"] == sha
+    (tmp_path / "eval.json").write_text(json.dumps({**report, "model_sha256": "0" * 64}))
+    with pytest.raises(EdgeExplorerError, match="another model"):
+        ship_predictor(run, tmp_path / "models", {"test": tmp_path / "eval.json"}, "")
+
+
+def test_fine_tuning_starts_from_init_weights(shard_dir, tmp_path):
+    first = tmp_path / "first"
+    train(_config(shard_dir), first)
+    tuned = _config(shard_dir, init_weights=str(first / "checkpoint.safetensors"), total_steps=1, learning_rate=1e-9)
+    train(tuned, tmp_path / "tuned")
+    fresh = _config(shard_dir, seed=1, total_steps=1, learning_rate=1e-9)
+    train(fresh, tmp_path / "fresh")
+    a, b, c = (load_file(str(tmp_path / run / "checkpoint.safetensors")) for run in ("first", "tuned", "fresh"))
+    kernels = [k for k in a if a[k].ndim == 4]  # convolution weights (BatchNorm statistics move in any step)
+    assert all(float((a[k] - b[k]).abs().max()) < 1e-6 for k in kernels)
+    assert any(float((a[k] - c[k]).abs().max()) > 1e-3 for k in kernels)

@@ -1,0 +1,122 @@
+"""The predictor runtime wrapper on a tiny ONNX model built here (edge_explorer.predict.predictor)."""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper
+
+from edge_explorer.backends.base import TensorSpec
+from edge_explorer.backends.card import ArtifactCard, write_card
+from edge_explorer.backends.chain import ModelLoadError, load_model
+from edge_explorer.mapping.ego import pad_shift
+from edge_explorer.predict.predictor import PredictorModelError, PredictorRuntime
+from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
+
+WINDOW = 16  # cells: a small stand-in for the 256×256 window; the wrapper takes the size from the model
+ORDER = ("edgetpu", "litert-cpu", "onnxruntime-cpu")
+
+
+def write_predictor_model(folder: Path, window: int = WINDOW, channels: int = 2, edgetpu: bool = False) -> Path:
+    """A ``predictor`` model folder: P(occupied) = sigmoid(10·occupied − 5) per cell, as ONNX with its card.
+
+    ``edgetpu``: also list a ``*_edgetpu.tflite`` artifact (not a real one: no Edge TPU is present here anyway).
+    Returns the card's path.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    shape = [1, channels, window, window]
+    out_shape = [1, 1, window, window]
+    graph = helper.make_graph(
+        [
+            helper.make_node("Slice", ["map", "starts", "ends", "axes"], ["occupied"]),
+            helper.make_node("Mul", ["occupied", "ten"], ["scaled"]),
+            helper.make_node("Sub", ["scaled", "five"], ["logits"]),
+            helper.make_node("Sigmoid", ["logits"], ["prob"]),
+        ],
+        "tiny-predictor",
+        [helper.make_tensor_value_info("map", TensorProto.FLOAT, shape)],
+        [helper.make_tensor_value_info("prob", TensorProto.FLOAT, out_shape)],
+        [
+            helper.make_tensor("starts", TensorProto.INT64, [1], [channels - 1]),
+            helper.make_tensor("ends", TensorProto.INT64, [1], [channels]),
+            helper.make_tensor("axes", TensorProto.INT64, [1], [1]),
+            helper.make_tensor("ten", TensorProto.FLOAT, [], [10.0]),
+            helper.make_tensor("five", TensorProto.FLOAT, [], [5.0]),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)], ir_version=8)
+    onnx.checker.check_model(model)
+    path = folder / "predictor_fp32.onnx"
+    onnx.save(model, path)
+    specs = [TensorSpec("map", tuple(shape), "float32")], [TensorSpec("prob", tuple(out_shape), "float32")]
+    artifacts = [ArtifactCard.describe(path, "onnx", *specs)]
+    if edgetpu:
+        fake = folder / "predictor_int8_edgetpu.tflite"
+        fake.write_bytes(b"TFL3 not really compiled for the Edge TPU")
+        artifacts.append(ArtifactCard.describe(fake, "edgetpu_tflite", *specs, precision="int8"))
+    card = folder / "card.json"
+    write_card(card, "predictor", artifacts)
+    return card
+
+
+def expected_probability(codes: np.ndarray) -> np.ndarray:
+    return (1.0 / (1.0 + np.exp(-(10.0 * (codes == OCCUPIED) - 5.0)))).astype(np.float32)
+
+
+def test_window_prediction_uses_the_shared_encoding(tmp_path):
+    predictor = PredictorRuntime(load_model(write_predictor_model(tmp_path / "predictor"), ORDER))
+    assert predictor.window_cells == WINDOW
+    window = np.random.default_rng(0).choice([FREE, UNKNOWN, OCCUPIED], size=(WINDOW, WINDOW)).astype(CELL_DTYPE)
+    np.testing.assert_allclose(predictor(window), expected_probability(window), atol=1e-6)
+
+
+def test_prediction_goes_back_onto_the_map_around_the_robot(tmp_path):
+    predictor = PredictorRuntime(load_model(write_predictor_model(tmp_path / "predictor"), ORDER))
+    codes = np.full((40, 30), FREE, dtype=CELL_DTYPE)
+    codes[:, 0] = OCCUPIED
+    robot = (20, 5)
+    probabilities = predictor.predict(codes, robot)
+    assert probabilities.shape == codes.shape and probabilities.dtype == np.float32
+    half = WINDOW // 2
+    rows, cols = slice(robot[0] - half, robot[0] + half), slice(0, robot[1] + half)  # the window's part on the map
+    np.testing.assert_allclose(probabilities[rows, cols], expected_probability(codes[rows, cols]), atol=1e-6)
+    outside = np.ones(codes.shape, dtype=bool)
+    outside[rows, cols] = False
+    assert np.isnan(probabilities[outside]).all()  # no prediction beyond the window: thresholding reads UNKNOWN
+    window = pad_shift(codes, robot, WINDOW)
+    assert window[half, half] == codes[robot]
+
+
+def test_no_edge_tpu_falls_back_to_the_cpu_and_says_why(tmp_path, caplog):
+    try:
+        ctypes.CDLL("libedgetpu.so.1")
+        pytest.skip("an Edge TPU runtime is installed on this host")
+    except OSError:
+        pass
+    card = write_predictor_model(tmp_path / "predictor", edgetpu=True)
+    with caplog.at_level(logging.INFO, logger="edge_explorer.backends.chain"):
+        predictor = PredictorRuntime(load_model(card, ORDER))
+    assert predictor.model.backend.name == "onnxruntime-cpu"
+    assert "edgetpu skipped: no Edge TPU present" in predictor.model.report
+    assert predictor.model.report in caplog.text
+
+
+def test_a_corrupted_artifact_is_refused_before_loading(tmp_path):
+    card = write_predictor_model(tmp_path / "predictor")
+    artifact = card.parent / "predictor_fp32.onnx"
+    data = bytearray(artifact.read_bytes())
+    data[-1] ^= 0xFF
+    artifact.write_bytes(bytes(data))
+    with pytest.raises(ModelLoadError, match="sha256 mismatch"):
+        PredictorRuntime(load_model(card, ORDER))
+
+
+def test_a_model_with_another_input_layout_is_refused(tmp_path):
+    card = write_predictor_model(tmp_path / "predictor", channels=1)
+    with pytest.raises(PredictorModelError, match=r"must be \[1, 2, S, S\]"):
+        PredictorRuntime(load_model(card, ORDER))

@@ -1,0 +1,605 @@
+"""The daemon's closed loop and its faults: the simulated vehicle and depth camera over real UDP on 127.0.0.1.
+
+Every flight here is a real one, in real time, on the tiny two-room plan: the daemon runs in a thread, the test
+injects a fault while it explores (corrupt depth frames, a UDP relay that drops odometry or heartbeats or
+everything, an odometry frame that jumps, a datagram flood), then checks that the daemon held position when it had
+to, said why, recovered, and never crashed or hit a wall. Signals and the no-torch rule are checked on the real
+command in a subprocess.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
+
+from edge_explorer.backends.chain import load_model
+from edge_explorer.cli import main
+from edge_explorer.mapping.voxels import VoxelRegion
+from edge_explorer.plan.policy import PolicyRuntime
+from edge_explorer.runtime.daemon import (
+    CoverageTruth,
+    Daemon,
+    DaemonConfig,
+    ModelSetupError,
+    RunReport,
+    choose_models,
+    frame_problem,
+)
+from edge_explorer.runtime.depth_sources import DepthFrame, SimulatedDepthSource
+from edge_explorer.runtime.mavlink_link import LinkConfig, LinkStatus, MavlinkLink, Pose
+from edge_explorer.sim.camera import CameraPose, DepthCamera, DepthIntrinsics
+from edge_explorer.sim.dynamics import Action
+from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, VehicleState
+from edge_explorer.world.catalog import plan_to_raster
+from edge_explorer.world.plan import save_plan_json
+from tests.conftest import two_room_plan
+from tests.plan.test_policy import write_policy_model
+from tests.predict.test_predictor import write_predictor_model
+from tests.runtime.test_mavlink_link import wait_for
+
+ORDER = ("edgetpu", "litert-cpu", "onnxruntime-cpu")
+START_XYZ = (1.0, 1.2, 1.2)  # west room, airborne below flight height (a short climb), facing the door
+CONFIG = DaemonConfig(
+    time_limit_s=5.0,
+    return_home=False,
+    home_hover_s=0.2,
+    offboard_warmup_s=0.3,
+    takeoff_speed_mps=1.0,
+    progress_every_s=1.0,
+)
+LOCAL_POSITION_NED, ATTITUDE, HEARTBEAT = 32, 30, 0
+
+
+@pytest.fixture(scope="module")
+def raster():
+    return plan_to_raster(two_room_plan())
+
+
+@pytest.fixture(scope="module")
+def camera(raster):
+    camera = DepthCamera(raster)
+    camera.render(CameraPose(*START_XYZ[:2], 1.7, 0.0))  # load the renderer before any flight
+    return camera
+
+
+# ---- fault injection ---------------------------------------------------------------------------------------------
+
+
+class UdpRelay:
+    """Forwards MAVLink datagrams between the link and the vehicle; ``drop`` decides per datagram what is lost.
+
+    ``drop(raw, to_link)`` gets each datagram and its direction. MAVLink 2 carries the message id in bytes 7–9.
+    """
+
+    def __init__(self, vehicle_port: int) -> None:
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.bind(("127.0.0.1", 0))
+        self._sock.settimeout(0.05)
+        self._vehicle = ("127.0.0.1", vehicle_port)
+        self._link: tuple[str, int] | None = None
+        self.drop: Callable[[bytes, bool], bool] = lambda raw, to_link: False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    @property
+    def port(self) -> int:
+        return self._sock.getsockname()[1]
+
+    @staticmethod
+    def message_id(raw: bytes) -> int:
+        return int.from_bytes(raw[7:10], "little") if raw[:1] == b"\xfd" and len(raw) >= 10 else -1
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                raw, address = self._sock.recvfrom(65535)
+            except TimeoutError:
+                continue
+            to_link = address == self._vehicle
+            if not to_link:
+                self._link = address
+            target = self._link if to_link else self._vehicle
+            if target is not None and not self.drop(raw, to_link):
+                self._sock.sendto(raw, target)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self._sock.close()
+
+
+class OffsetLink(MavlinkLink):
+    """A link whose odometry frame moves by ``offset`` when :meth:`jump` is called — a VIO reset: poses gain the
+    offset and targets lose it, so the autopilot (flying its own estimate) does not move."""
+
+    offset = (0.0, 0.0)
+
+    def jump(self, dx_m: float, dy_m: float) -> None:
+        self.offset = (dx_m, dy_m)
+
+    def _shifted(self, pose: Pose | None) -> Pose | None:
+        if pose is None:
+            return None
+        return replace(pose, x_m=pose.x_m + self.offset[0], y_m=pose.y_m + self.offset[1])
+
+    def pose_at(self, t_s: float) -> Pose | None:
+        return self._shifted(super().pose_at(t_s))
+
+    def latest_pose(self) -> Pose | None:
+        return self._shifted(super().latest_pose())
+
+    def set_target(self, x_m: float, y_m: float, z_m: float, yaw_rad: float) -> None:
+        super().set_target(x_m - self.offset[0], y_m - self.offset[1], z_m, yaw_rad)
+
+
+class CorruptingSource:
+    """Passes the simulated camera's frames through, corrupting frames ``first`` … ``last − 1`` in turn."""
+
+    KINDS = ("nan", "inf", "zero", "shape", "stamp")
+
+    def __init__(self, inner: SimulatedDepthSource, first: int, last: int) -> None:
+        self._inner, self._first, self._last = inner, first, last
+        self.count = 0
+
+    @property
+    def intrinsics(self):
+        return self._inner.intrinsics
+
+    @property
+    def finished(self) -> bool:
+        return False
+
+    def close(self) -> None:
+        self._inner.close()
+
+    def next_frame(self, timeout_s: float = 1.0) -> DepthFrame | None:
+        frame = self._inner.next_frame(timeout_s)
+        if frame is None:
+            return None
+        k, self.count = self.count, self.count + 1
+        if not self._first <= k < self._last:
+            return frame
+        kind = self.KINDS[(k - self._first) % len(self.KINDS)]
+        depth = frame.depth_m.copy()
+        if kind == "nan":
+            depth[40:60, 90:120] = np.nan
+        elif kind == "inf":
+            depth[0, 0] = np.inf
+        elif kind == "zero":
+            depth[:] = 0.0
+        elif kind == "shape":
+            depth = depth[:-1]
+        else:
+            return replace(frame, stamp_s=frame.stamp_s - 100.0)
+        return replace(frame, depth_m=depth)
+
+
+# ---- one flight --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Flight:
+    report: RunReport
+    daemon: Daemon
+    vehicle: VehicleState
+    link: LinkStatus
+
+
+def fly(
+    raster,
+    camera,
+    tmp_path: Path,
+    config: DaemonConfig = CONFIG,
+    *,
+    during: Callable[[Daemon, MavlinkLink, SimulatedVehicle, UdpRelay | None], None] | None = None,
+    link_cls: type[MavlinkLink] = MavlinkLink,
+    relay: bool = False,
+    source: Callable[[SimulatedDepthSource], object] = lambda s: s,
+    policy: PolicyRuntime | None = None,
+) -> Flight:
+    """Fly the daemon on the two-room plan; ``during`` runs in the test's thread once the daemon explores."""
+    vehicle_config = VehicleConfig(start_xyz_m=START_XYZ, start_yaw_rad=0.0)
+    with SimulatedVehicle(vehicle_config, raster) as vehicle:
+        proxy = UdpRelay(vehicle.address[1]) if relay else None
+        port = proxy.port if proxy is not None else vehicle.address[1]
+        try:
+            link_config = LinkConfig(connect=f"udpout:127.0.0.1:{port}", tlog_path=tmp_path / "flight.tlog")
+            with link_cls(link_config) as link:
+                frames = source(SimulatedDepthSource(camera, vehicle, rate_hz=15.0, seed=0))
+                daemon = Daemon(
+                    config,
+                    link,
+                    frames,
+                    policy=policy,
+                    truth=CoverageTruth(raster),
+                    region=VoxelRegion.covering(raster.grid),
+                )
+                outcome: dict[str, object] = {}
+
+                def run() -> None:
+                    try:
+                        outcome["report"] = daemon.run()
+                    except BaseException as exc:  # noqa: BLE001 - re-raised in the test's thread
+                        outcome["error"] = exc
+
+                thread = threading.Thread(target=run, name="daemon-under-test")
+                thread.start()
+                if during is not None:
+                    assert wait_for(lambda: daemon.phase == "exploring" or not thread.is_alive(), 10.0)
+                    during(daemon, link, vehicle, proxy)
+                thread.join(timeout=40.0)
+                assert not thread.is_alive(), "the daemon did not finish"
+                if "error" in outcome:
+                    raise outcome["error"]  # type: ignore[misc]
+                return Flight(outcome["report"], daemon, vehicle.state(), link.status())  # type: ignore[arg-type]
+        finally:
+            if proxy is not None:
+                proxy.close()
+
+
+def hold_reasons(report: RunReport) -> list[str]:
+    return [h["reason"] for h in report.holds]
+
+
+def decisions_after(report: RunReport, t_s: float) -> int:
+    return sum(1 for t, *_ in report.timeline if t > t_s)
+
+
+# ---- the loop ----------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_explores_reaches_the_coverage_goal_and_flies_home(raster, camera, tmp_path):
+    config = replace(CONFIG, coverage_goal=0.7, time_limit_s=12.0, return_home=True, return_time_limit_s=8.0)
+    flight = fly(raster, camera, tmp_path, config)
+    report = flight.report
+    assert report.ending == "coverage goal"
+    assert report.coverage >= 0.7 and report.path_at_goal_m is not None
+    assert report.returned_home and flight.daemon.phase == "done"
+    assert flight.vehicle.collisions == 0
+    assert report.holds == [] and report.frames_dropped == {}
+    assert report.waypoint_sources.get("frontier", 0) > 0
+    assert {"fuse", "project", "planner", "waypoint_trajectory", "coverage", "decision"} <= set(report.stages)
+    assert flight.vehicle.setpoint_rate_hz >= 10.0  # the setpoint stream, as PX4 offboard needs
+
+
+@pytest.mark.slow
+def test_a_policy_flying_into_walls_is_overruled_by_the_safety_check(raster, camera, tmp_path):
+    """A policy that always says FORWARD: the west wall of the east room stops it; every unsafe choice is replaced
+    by the frontier planner's (or hover); the vehicle never touches a wall."""
+    policy = PolicyRuntime(load_model(write_policy_model(tmp_path / "policy", always=Action.FORWARD), ORDER))
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=8.0), policy=policy)
+    sources = flight.report.waypoint_sources
+    assert flight.report.planner == "drl"
+    assert sources.get("policy", 0) > 0 and sources.get("frontier", 0) + sources.get("hover", 0) > 0
+    assert {"ego", "policy", "waypoint_trajectory"} <= set(flight.report.stages)
+    assert flight.vehicle.collisions == 0
+
+
+@pytest.mark.slow
+def test_bad_depth_frames_are_dropped_and_a_blind_camera_means_hold(raster, camera, tmp_path, caplog):
+    """45 frames in a row are bad (NaN, inf, all zero, wrong shape, an old stamp, in turn): each is dropped with a
+    log line and a count; 3 s without a usable frame make the daemon hold until frames are good again."""
+    corrupting: list[CorruptingSource] = []
+
+    def wrap(inner):
+        corrupting.append(CorruptingSource(inner, first=30, last=75))
+        return corrupting[0]
+
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=7.0), source=wrap)
+    report = flight.report
+    assert report.frames_dropped == {
+        "NaN or inf depth": 18,
+        "no returns (all zero)": 9,
+        "wrong shape": 9,
+        "timestamp not after the last frame": 9,
+    }
+    assert report.frames_fused + 45 == corrupting[0].count
+    assert "no usable depth frame for more than 1.0 s" in hold_reasons(report)
+    assert all(h["duration_s"] is not None for h in report.holds)  # it resumed
+    assert decisions_after(report, report.holds[-1]["t_s"] + report.holds[-1]["duration_s"]) > 0
+    assert flight.vehicle.collisions == 0
+    assert "depth frame dropped: NaN or inf depth" in caplog.text
+    assert "holding position: no usable depth frame" in caplog.text
+
+
+@pytest.mark.slow
+def test_stale_odometry_means_hold_until_it_is_fresh(raster, camera, tmp_path, caplog):
+    caplog.set_level(logging.INFO)
+
+    def stale_for_two_seconds(daemon, link, vehicle, relay):
+        relay.drop = lambda raw, to_link: to_link and UdpRelay.message_id(raw) in (LOCAL_POSITION_NED, ATTITUDE)
+        time.sleep(2.0)
+        relay.drop = lambda raw, to_link: False
+
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=6.0), relay=True, during=stale_for_two_seconds)
+    report = flight.report
+    stale = [h for h in report.holds if h["reason"].startswith("odometry stale")]
+    assert len(stale) == 1 and 1.2 < stale[0]["duration_s"] < 3.0
+    assert decisions_after(report, stale[0]["t_s"] + stale[0]["duration_s"]) > 0
+    assert flight.vehicle.collisions == 0
+    assert "holding position: odometry stale" in caplog.text and "resuming" in caplog.text
+
+
+@pytest.mark.slow
+def test_a_pose_jump_means_hold_new_maps_and_recovery(raster, camera, tmp_path, caplog):
+    def vio_reset(daemon, link, vehicle, relay):
+        time.sleep(1.0)
+        link.jump(1.5, -0.5)
+
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=5.0), link_cls=OffsetLink, during=vio_reset)
+    report = flight.report
+    assert "settling after an odometry jump" in hold_reasons(report)
+    assert all(h["duration_s"] is not None for h in report.holds)
+    assert "odometry jumped" in caplog.text and "starting new ones" in caplog.text
+    assert flight.daemon.home_xy_m == pytest.approx((START_XYZ[0] + 1.5, START_XYZ[1] - 0.5), abs=0.1)
+    assert decisions_after(report, report.holds[-1]["t_s"] + report.holds[-1]["duration_s"]) > 0
+    assert flight.vehicle.collisions == 0
+
+
+@pytest.mark.slow
+def test_heartbeat_lost_for_five_seconds_means_hold_then_recovery(raster, camera, tmp_path, caplog):
+    def no_heartbeat(daemon, link, vehicle, relay):
+        relay.drop = lambda raw, to_link: to_link and UdpRelay.message_id(raw) == HEARTBEAT
+        time.sleep(5.0)
+        relay.drop = lambda raw, to_link: False
+
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=8.0), relay=True, during=no_heartbeat)
+    report = flight.report
+    lost = [h for h in report.holds if h["reason"].startswith("MAVLink link lost")]
+    assert len(lost) == 1 and lost[0]["duration_s"] is not None
+    assert decisions_after(report, lost[0]["t_s"] + lost[0]["duration_s"]) > 0
+    assert flight.vehicle.mode == "OFFBOARD"  # the setpoints kept flowing: the autopilot never left
+    assert flight.vehicle.collisions == 0
+    assert "holding position: MAVLink link lost" in caplog.text
+
+
+@pytest.mark.slow
+def test_a_five_second_blackout_both_ways_ends_in_offboard_again(raster, camera, tmp_path, caplog):
+    """Nothing passes for 5 s: the autopilot falls back to its hold mode (no setpoints), the daemon holds; when the
+    link is back the daemon takes OFFBOARD back and flies on."""
+    caplog.set_level(logging.INFO)
+
+    def blackout(daemon, link, vehicle, relay):
+        relay.drop = lambda raw, to_link: True
+        time.sleep(5.0)
+        relay.drop = lambda raw, to_link: False
+
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=9.0), relay=True, during=blackout)
+    report = flight.report
+    reasons = " | ".join(hold_reasons(report))
+    assert "MAVLink link lost" in reasons or "odometry stale" in reasons
+    assert "re-engaging OFFBOARD after the link loss" in caplog.text
+    assert flight.vehicle.mode == "OFFBOARD" and flight.vehicle.armed
+    assert all(h["duration_s"] is not None for h in report.holds)
+    assert decisions_after(report, report.holds[-1]["t_s"] + report.holds[-1]["duration_s"]) > 0
+    assert flight.vehicle.collisions == 0
+
+
+@pytest.mark.slow
+def test_ten_thousand_bad_datagrams_on_the_daemons_port(raster, camera, tmp_path):
+    rng = np.random.default_rng(0)
+    packer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    valid = [
+        bytes(packer.heartbeat_encode(2, 12, 0, 0, 4).pack(packer)),
+        bytes(packer.local_position_ned_encode(1000, 9.0, 9.0, -9.0, 0, 0, 0).pack(packer)),
+    ]
+    datagrams = []
+    for k in range(10_000):
+        if k % 2:
+            datagrams.append(rng.bytes(int(rng.integers(1, 280))))
+        else:
+            raw = valid[k // 2 % 2]
+            datagrams.append(raw[: int(rng.integers(1, len(raw)))])  # truncated: never a whole message
+    sent: dict[str, float] = {}
+
+    def flood(daemon, link, vehicle, relay):
+        port = link.local_address[1]
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for raw in datagrams:
+                s.sendto(raw, ("127.0.0.1", port))
+        sent["t_s"] = time.monotonic() - daemon._t0_s
+
+    flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=5.0), during=flood)
+    assert flight.link.datagrams_bad > 1000  # the rest were lost in the socket buffer: also fine
+    assert decisions_after(flight.report, sent["t_s"] + 0.5) > 0
+    assert flight.report.ending == "time limit"
+    assert flight.vehicle.collisions == 0
+
+
+def test_frame_problem_names_each_bad_frame():
+    k = DepthIntrinsics.d435()
+    good = DepthFrame(np.full(k.shape, 2.0, np.float32), 10.0, k)
+    assert frame_problem(good, None) is None and frame_problem(good, 9.9) is None
+    assert frame_problem(replace(good, stamp_s=9.9), 10.0) == "timestamp not after the last frame"
+    assert frame_problem(replace(good, stamp_s=10.0), 10.0) == "timestamp not after the last frame"
+    assert frame_problem(replace(good, depth_m=good.depth_m.astype(np.uint16)), None) == "wrong dtype"
+
+
+# ---- models ------------------------------------------------------------------------------------------------------
+
+
+def test_missing_models_fall_back_to_frontier_without_a_predictor(tmp_path):
+    choice = choose_models(tmp_path / "models", "auto", ORDER)
+    assert choice.policy is None and choice.predictor is None
+    assert choice.notes[0].startswith("planner: frontier (no usable DRL policy: no policy model")
+    assert choice.notes[1].startswith("predictor: none, coverage counts observed cells (no predictor model")
+    with pytest.raises(ModelSetupError, match="--planner drl: no policy model"):
+        choose_models(tmp_path / "models", "drl", ORDER)
+
+
+def test_corrupted_models_are_refused_and_said_so(tmp_path):
+    models = tmp_path / "models"
+    for card in (write_policy_model(models / "policy"), write_predictor_model(models / "predictor")):
+        artifact = next(card.parent.glob("*.onnx"))
+        artifact.write_bytes(artifact.read_bytes() + b"\0")
+    choice = choose_models(models, "auto", ORDER)
+    assert choice.policy is None and choice.predictor is None
+    assert "sha256 mismatch" in choice.notes[0] and "sha256 mismatch" in choice.notes[1]
+    with pytest.raises(ModelSetupError, match="sha256 mismatch"):
+        choose_models(models, "drl", ORDER)
+
+
+def test_shipped_models_are_used(tmp_path):
+    models = tmp_path / "models"
+    write_policy_model(models / "policy")
+    write_predictor_model(models / "predictor")
+    choice = choose_models(models, "auto", ORDER)
+    assert choice.policy is not None and choice.predictor is not None
+    assert choice.notes[0].startswith("planner: drl (policy: onnxruntime-cpu on policy_fp32.onnx")
+    assert choose_models(models, "frontier", ORDER).policy is None
+
+
+def test_run_with_planner_drl_and_no_policy_is_a_one_line_error(tmp_path, capsys):
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    code = main(
+        [
+            "run",
+            "--planner",
+            "drl",
+            "--models",
+            str(tmp_path / "none"),
+            "--plan",
+            str(plan),
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("edge-explorer: error: --planner drl: no policy model")
+
+
+# ---- the real command in a subprocess ----------------------------------------------------------------------------
+
+
+def _command(tmp_path: Path, *extra: str) -> list[str]:
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    return [
+        sys.executable,
+        "-m",
+        "edge_explorer.cli",
+        "run",
+        "--plan",
+        str(plan),
+        "--out",
+        str(tmp_path / "out"),
+        *extra,
+    ]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("sig", "code", "name"), [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 0, "SIGTERM")])
+def test_a_signal_mid_flight_holds_writes_the_summary_and_closes_the_tlog(tmp_path, sig, code, name):
+    command = _command(tmp_path, "--time-limit-s", "60", "--models", str(tmp_path / "none"))
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=Path(__file__).resolve().parents[2]
+    )
+    try:
+        lines = []
+        for line in process.stdout:
+            lines.append(line)
+            if "climbing from" in line:
+                break
+        time.sleep(1.5)  # mid-flight: climbing at its fastest
+        process.send_signal(sig)
+        output, _ = process.communicate(timeout=20)
+    finally:
+        process.kill()
+    assert process.returncode == code, "".join(lines) + output
+    assert f"stopping: interrupted ({name}); holding position" in output
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["ending"] == f"interrupted ({name})" and summary["collisions"] == 0
+    assert (tmp_path / "out" / "summary.png").stat().st_size > 0
+
+    tlog = mavutil.mavlink_connection(str(tmp_path / "out" / "flight.tlog"))
+    last_target = last_position = None
+    count = 0
+    while (msg := tlog.recv_match()) is not None:
+        assert msg.get_type() != "BAD_DATA"
+        count += 1
+        if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+            last_target = msg
+        elif msg.get_type() == "LOCAL_POSITION_NED":
+            last_position = msg
+    assert count > 100 and last_target is not None and last_position is not None
+    # The last setpoint is a hold where the vehicle is (NED on the wire).
+    assert math.dist((last_target.x, last_target.y), (last_position.x, last_position.y)) < 0.3
+    assert abs(last_target.z - last_position.z) < 0.3
+
+
+@pytest.mark.slow
+def test_the_runtime_path_imports_no_torch_tensorflow_or_sb3(tmp_path):
+    """A short flight of the real command with both (tiny) models through the backend chain; then sys.modules."""
+    models = tmp_path / "models"
+    write_policy_model(models / "policy")
+    write_predictor_model(models / "predictor")
+    run_args = _command(tmp_path, "--time-limit-s", "0.5", "--no-return", "--models", str(models))[3:]
+    script = (
+        "import sys\n"
+        "from edge_explorer.cli import main\n"
+        f"code = main({run_args!r})\n"
+        "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'stable_baselines3', 'tensorflow'))\n"
+        "print('HEAVY', heavy)\n"
+        "sys.exit(code)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=env)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "HEAVY []" in result.stdout
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["planner"] == "drl" and summary["backends"]["predictor"] == "onnxruntime-cpu"
+    assert summary["waypoint_sources"].get("policy", 0) > 0
+    assert {"predictor", "thresholding", "ego", "policy"} <= set(summary["stages_ms"])
+    assert summary["collisions"] == 0
+
+
+@pytest.mark.slow
+def test_the_acceptance_bench_flies_each_building_in_its_own_process(tmp_path):
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    out = tmp_path / "bench"
+    code = main(
+        [
+            "run",
+            "--plans",
+            str(plan),
+            "--runs",
+            "1",
+            "--time-limit-s",
+            "1",
+            "--no-return",
+            "--models",
+            str(tmp_path / "none"),
+            "--out",
+            str(out),
+            "--json",
+            str(out / "bench.json"),
+        ]
+    )
+    bench = json.loads((out / "bench.json").read_text())
+    assert code == 1  # one flight, which did not reach 95 % coverage in 1 s
+    flight = bench["flights"][0]
+    assert flight["plan"] == "two-rooms" and flight["collisions"] == 0 and flight["ending"] == "time limit"
+    row = bench["summary"]["two-rooms"]
+    assert row["flights"] == 1 and row["reached_goal"] == 0 and row["peak_rss_mb_worst"] == flight["peak_rss_mb"]
+    assert (out / "two-rooms-run00" / "flight.tlog").stat().st_size > 0
