@@ -6,17 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from edge_explorer.cli import positive_int
+
 DESCRIPTION = "Exploration benchmark: path length to 95 % coverage per building and method, coverage figure."
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,14 +31,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="A,B,C,D",
         help="plan reference(s): A-D, test, a folder, a plan .json or a map_server .yaml (default A,B,C,D)",
     )
-    explore.add_argument("--runs", type=_positive_int, default=10, help="runs per building and method (default 10)")
+    explore.add_argument("--runs", type=positive_int, default=10, help="runs per building and method (default 10)")
     explore.add_argument("--seed", type=int, default=0, help="benchmark seed: start poses and noise (default 0)")
-    explore.add_argument("--max-steps", type=_positive_int, default=1500, help="step cap per run (default 1500)")
+    explore.add_argument("--max-steps", type=positive_int, default=1500, help="step cap per run (default 1500)")
     explore.add_argument(
         "--predictor",
         help="module:callable mapping the 256×256 low-res window to probabilities (needed by the +pred methods)",
     )
-    explore.add_argument("--workers", type=_positive_int, help="processes (default: all cores)")
+    explore.add_argument("--workers", type=positive_int, help="processes (default: all cores)")
     explore.add_argument("--out-dir", type=Path, help="one JSON record per finished run; a rerun skips recorded runs")
     explore.add_argument("--json", type=Path, help="write every figure here")
     explore.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")

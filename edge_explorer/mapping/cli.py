@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from edge_explorer.cli import positive_int
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -37,21 +39,11 @@ SWEEP_PERIOD_M = 4.0
 OCTOMAP_PACKAGE = "octomap-python"
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     mp = sub.add_parser("map", help="depth-frame mapping: bench", description=DESCRIPTION)
     msub = mp.add_subparsers(dest="map_command", metavar="ACTION", required=True)
     bench = msub.add_parser("bench", help="render a fixed trajectory, fuse every frame, report speed and accuracy")
-    bench.add_argument("--frames", type=_positive_int, default=300, help="frames along the tour (default 300)")
+    bench.add_argument("--frames", type=positive_int, default=300, help="frames along the tour (default 300)")
     bench.add_argument("--plan", default="A", help="A-D, a plan .json or a map_server .yaml (default A)")
     bench.add_argument("--json", type=Path, help="write the figures here")
     bench.add_argument("--png", type=Path, help="draw a depth frame and the projected maps beside the plan")

@@ -9,17 +9,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from edge_explorer.cli import positive_int
+
 DESCRIPTION = "2-D exploration simulator: benchmark its step rate, draw an episode."
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="env steps per second on one core, no predictor, full-size observations",
         description="Random actions on the given plans; one process, one thread; time per stage.",
     )
-    bench.add_argument("--steps", type=_positive_int, required=True, help="timed env steps")
+    bench.add_argument("--steps", type=positive_int, required=True, help="timed env steps")
     bench.add_argument("--plans", default="A,B,C,D", help="plan reference(s) (default: the bundled A,B,C,D)")
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--warmup", type=int, default=200, help="untimed steps first (default 200)")
@@ -40,11 +32,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     show = ssub.add_parser("show", help="run one episode and draw the observation beside the truth")
     show.add_argument("--plan", required=True, help="one plan: A-D, a plan .json or a map_server .yaml")
-    show.add_argument("--steps", type=_positive_int, required=True, help="at most this many steps")
+    show.add_argument("--steps", type=positive_int, required=True, help="at most this many steps")
     show.add_argument("--png", type=Path, required=True, help="the last observation beside the truth")
     show.add_argument("--gif", type=Path, help="also an animation of every step")
-    show.add_argument("--policy", choices=("scripted", "random"), default="scripted",
-                      help="scripted: fly forward, turn away from walls (default); random: uniform actions")
+    show.add_argument(
+        "--policy",
+        choices=("scripted", "random"),
+        default="scripted",
+        help="scripted: fly forward, turn away from walls (default); random: uniform actions",
+    )
     show.add_argument("--seed", type=int, default=0)
     show.set_defaults(func=_show)
 
@@ -92,9 +88,7 @@ def _bench(args: argparse.Namespace) -> int:
         "episodes_finished": episodes,
         "predictor": None,
         "observation_shapes": {k: list(v.shape) for k, v in env.observation_space.spaces.items()},
-        "stages": {
-            name: {"us_per_step": 1e6 * s / args.steps, "share": s / total_s} for name, s in stages.items()
-        },
+        "stages": {name: {"us_per_step": 1e6 * s / args.steps, "share": s / total_s} for name, s in stages.items()},
         "dominant_stage": max(env.stage_seconds, key=env.stage_seconds.get),  # type: ignore[arg-type]
         "host": {
             "machine": platform.machine(),
@@ -172,16 +166,24 @@ def _show(args: argparse.Namespace) -> int:
     half = obs["high"].shape[0] // 2
     for ax, key, res in ((axes[0], "high", 0.05), (axes[1], "thres", 0.20)):
         extent = np.array([-half - 0.5, half + 0.5]) * res
-        ax.imshow(obs[key], origin="lower", cmap=codes_cmap, vmin=-1.5, vmax=2.5, interpolation="nearest",
-                  extent=(*extent, *extent))
+        ax.imshow(
+            obs[key],
+            origin="lower",
+            cmap=codes_cmap,
+            vmin=-1.5,
+            vmax=2.5,
+            interpolation="nearest",
+            extent=(*extent, *extent),
+        )
         ax.plot(0, 0, marker="^", color="red", markersize=8)
         ax.set_title(f"observation '{key}' ({res:.2f} m cells, heading up)")
         ax.set_xlabel("right of the vehicle [m]")
         ax.set_ylabel("ahead of the vehicle [m]")
     grid = raster.grid
     x0, y0 = grid.origin_xy
-    axes[2].imshow(env.truth_image(), extent=(x0, x0 + grid.size_xy_m[0], y0, y0 + grid.size_xy_m[1]),
-                   interpolation="nearest")
+    axes[2].imshow(
+        env.truth_image(), extent=(x0, x0 + grid.size_xy_m[0], y0, y0 + grid.size_xy_m[1]), interpolation="nearest"
+    )
     axes[2].plot(*env.path_xy_m[0], marker="o", color="green", markersize=6)
     axes[2].set_title(
         f"truth {raster.name}: coverage {info['coverage']:.2f}, F1 {info['f1']:.2f}, "
@@ -198,7 +200,10 @@ def _show(args: argparse.Namespace) -> int:
             Patch(color=(170 / 255, 210 / 255, 250 / 255), label="truth panel: observed free"),
             Patch(color=(150 / 255,) * 3, label="truth panel: wall not yet seen"),
         ],
-        loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3, fontsize=8,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.12),
+        ncol=3,
+        fontsize=8,
     )
     fig.tight_layout()
     args.png.parent.mkdir(parents=True, exist_ok=True)

@@ -8,6 +8,8 @@ import os
 import sys
 from pathlib import Path
 
+from edge_explorer.cli import positive_int
+
 DESCRIPTION = "Floor plans: generate the dataset, show a plan, check plan files, draw a contact sheet."
 
 
@@ -22,28 +24,16 @@ def _split_arg(text: str) -> tuple[int, int, int]:
     return values  # type: ignore[return-value]
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     plans = sub.add_parser("plans", help="floor plans: generate, show, check, sheet", description=DESCRIPTION)
     psub = plans.add_subparsers(dest="plans_command", metavar="ACTION", required=True)
 
     gen = psub.add_parser("generate", help="generate the sharded dataset (parallel, resumable)")
-    gen.add_argument("--count", type=_positive_int, required=True, help="total number of plans")
+    gen.add_argument("--count", type=positive_int, required=True, help="total number of plans")
     gen.add_argument("--seed", type=int, default=0, help="dataset seed (default 0, the one the test split uses)")
     gen.add_argument("--out", type=Path, required=True, help="output folder (resumes if it exists)")
     gen.add_argument("--split", type=_split_arg, default=(45000, 4900, 100), help="train,val,test ratio")
-    gen.add_argument(
-        "--workers", type=_positive_int, default=os.cpu_count() or 1, help="processes (default: all cores)"
-    )
+    gen.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: all cores)")
     gen.add_argument("--json", type=Path, help="write the run's figures here")
     gen.set_defaults(func=_generate)
 
@@ -58,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     check.set_defaults(func=_check)
 
     sheet = psub.add_parser("sheet", help="contact sheet of random generated plans (+ extra plans)")
-    sheet.add_argument("--count", type=_positive_int, default=24)
+    sheet.add_argument("--count", type=positive_int, default=24)
     sheet.add_argument("--seed", type=int, default=0)
     sheet.add_argument("--extra", help="more plans to append, e.g. ../shared/data/realplans")
     sheet.add_argument("--png", type=Path, required=True)
