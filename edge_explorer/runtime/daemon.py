@@ -38,11 +38,13 @@ one the policy was trained on.
 **Degrading safely.** The daemon holds position (the link's :meth:`hold`: the latest odometry pose) and logs why
 whenever an input is missing: the autopilot's heartbeat lost, odometry older than ``odometry_max_age_s``, a pose
 jump (consecutive odometry poses farther apart than the vehicle can fly plus ``pose_jump_m``: a VIO reset or
-relocalisation), no usable depth frame for ``depth_timeout_s``. After a jump the maps are in the old frame, so they
-are started afresh (and home is moved by the jump); frames are not fused for ``jump_settle_s``. It resumes
-when the input is back. If the autopilot leaves OFFBOARD while the link is healthy, a pilot or a failsafe took
-over: the daemon ends the run instead of taking control back; if it left OFFBOARD because the link was lost, the
-daemon re-engages OFFBOARD once the link is back.
+relocalisation), no usable depth frame for ``depth_timeout_s`` (not while climbing at take-off: the vertical climb
+needs no map, and a camera on the ground may see nothing). After a jump the maps are in the old frame, so they are
+started afresh (and home is moved by the jump); frames are not fused for ``jump_settle_s``. It resumes when the
+input is back; after ``max_hold_s`` without it, it ends the flight (its last setpoint is a hold; once setpoints
+stop, the autopilot's own failsafe takes over). If the autopilot leaves OFFBOARD while the link is healthy, a pilot
+or a failsafe took over: the daemon ends the run instead of taking control back; if it left OFFBOARD because the
+link was lost, the daemon re-engages OFFBOARD once the link is back.
 
 **The end.** Exploration ends at ``coverage_goal`` (predicted coverage with a predictor, observed without), at
 ``time_limit_s``, or when the frontier planner has nothing left; the daemon then flies home (the take-off point,
@@ -136,6 +138,7 @@ class DaemonConfig:
     pose_jump_m: float = 1.0
     jump_settle_s: float = 1.0
     depth_timeout_s: float = 1.0
+    max_hold_s: float = 60.0  # inputs not back after this long: end the flight (the autopilot's failsafe takes over)
     reanchor_distance_m: float = 0.5
     footprint_clear_m: float = 0.2  # flown space counted as free (below the 0.25 m robot radius; 0 disables)
     policy_hover_limit: int = 3  # consecutive policy hovers after which the frontier planner decides
@@ -158,6 +161,7 @@ class DaemonConfig:
             "odometry_max_age_s",
             "pose_jump_m",
             "depth_timeout_s",
+            "max_hold_s",
             "reanchor_distance_m",
             "progress_every_s",
             "flight_height_m",
@@ -527,7 +531,8 @@ class Daemon:
         hold_reason = self._check_inputs(frame_in_s)
         if frame is not None:
             self._ingest(frame)
-        if hold_reason is None and frame_in_s - self._last_fused_s > self.config.depth_timeout_s:
+        blind = frame_in_s - self._last_fused_s > self.config.depth_timeout_s
+        if hold_reason is None and blind and self._phase != "takeoff":  # the vertical climb needs no map
             hold_reason = f"no usable depth frame for more than {self.config.depth_timeout_s:.1f} s"
         if hold_reason is not None:
             self._enter_hold(hold_reason)
@@ -640,6 +645,8 @@ class Daemon:
         elif reason != self._hold_reason:
             log.warning("still holding position: %s", reason)
         self._hold_reason = reason
+        if time.monotonic() - self._hold_since_s > self.config.max_hold_s:
+            self._stop_reason = f"held position for more than {self.config.max_hold_s:.0f} s ({reason})"
         if self._link_lost_in_control and reason.startswith("autopilot in"):
             self._try_reengage()
 

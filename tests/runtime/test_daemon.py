@@ -150,12 +150,13 @@ class OffsetLink(MavlinkLink):
 
 
 class CorruptingSource:
-    """Passes the simulated camera's frames through, corrupting frames ``first`` … ``last − 1`` in turn."""
+    """Passes the simulated camera's frames through, corrupting frames ``first`` … ``last − 1`` (each of ``kinds``
+    in turn)."""
 
     KINDS = ("nan", "inf", "zero", "shape", "stamp")
 
-    def __init__(self, inner: SimulatedDepthSource, first: int, last: int) -> None:
-        self._inner, self._first, self._last = inner, first, last
+    def __init__(self, inner: SimulatedDepthSource, first: int, last: int, kinds: tuple[str, ...] = KINDS) -> None:
+        self._inner, self._first, self._last, self._kinds = inner, first, last, kinds
         self.count = 0
 
     @property
@@ -176,7 +177,7 @@ class CorruptingSource:
         k, self.count = self.count, self.count + 1
         if not self._first <= k < self._last:
             return frame
-        kind = self.KINDS[(k - self._first) % len(self.KINDS)]
+        kind = self._kinds[(k - self._first) % len(self._kinds)]
         depth = frame.depth_m.copy()
         if kind == "nan":
             depth[40:60, 90:120] = np.nan
@@ -318,6 +319,27 @@ def test_bad_depth_frames_are_dropped_and_a_blind_camera_means_hold(raster, came
     assert flight.vehicle.collisions == 0
     assert "depth frame dropped: NaN or inf depth" in caplog.text
     assert "holding position: no usable depth frame" in caplog.text
+
+
+@pytest.mark.slow
+def test_a_camera_that_sees_nothing_on_the_ground_does_not_stop_the_take_off(raster, camera, tmp_path):
+    """No returns for the first 2 s (a drone parked inside a cabinet, a lens cap): the climb goes on, exploring
+    starts once frames are usable."""
+    flight = fly(
+        raster, camera, tmp_path, source=lambda inner: CorruptingSource(inner, first=0, last=30, kinds=("zero",))
+    )
+    report = flight.report
+    assert report.frames_dropped == {"no returns (all zero)": 30}
+    assert report.exploration_s is not None and report.decisions > 0
+    assert flight.vehicle.collisions == 0
+
+
+@pytest.mark.slow
+def test_inputs_that_never_come_back_end_the_flight(raster, camera, tmp_path):
+    config = replace(CONFIG, max_hold_s=2.0, time_limit_s=30.0)
+    flight = fly(raster, camera, tmp_path, config, source=lambda inner: CorruptingSource(inner, 20, 10**6, ("zero",)))
+    assert flight.report.ending == "held position for more than 2 s (no usable depth frame for more than 1.0 s)"
+    assert flight.report.wall_s < 15.0
 
 
 @pytest.mark.slow
