@@ -36,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     explore.add_argument("--max-steps", type=positive_int, default=1500, help="step cap per run (default 1500)")
     explore.add_argument(
         "--predictor",
-        help="module:callable mapping the 256×256 low-res window to probabilities (needed by the +pred methods)",
+        help="the +pred methods' predictor: a model folder with card.json (e.g. models/predictor), a .safetensors "
+        "file, or module:callable",
     )
     explore.add_argument("--workers", type=positive_int, help="processes (default: all cores)")
     explore.add_argument("--out-dir", type=Path, help="one JSON record per finished run; a rerun skips recorded runs")

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.baselines import PLANNERS
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
@@ -125,13 +126,39 @@ def start_pose(raster: PlanRaster, seed: int) -> tuple[float, float, float]:
 
 
 def load_predictor(reference: str) -> Predictor:
-    """The predictor named by ``module:attribute``: a callable from the 256×256 int8 north-up low-res window to
-    occupancy probabilities of the same shape (what :class:`~edge_explorer.sim.env.ExplorationEnv` takes)."""
+    """The predictor named by ``reference``: a callable from the 256×256 int8 north-up low-res window to occupancy
+    probabilities of the same shape (what :class:`~edge_explorer.sim.env.ExplorationEnv` takes).
+
+    ``reference`` is one of
+
+    * a model folder (``models/predictor``) or its ``card.json``: the exported artifacts through the backend chain
+      (:func:`~edge_explorer.backends.chain.load_model`, int8 first, each checked against the card) — what the
+      daemon flies;
+    * a ``.safetensors`` file of :func:`~edge_explorer.learn.unet.save_unet`: the torch model (needs the ``train``
+      extra), for weights that have not been exported yet;
+    * ``module:callable``: any Python function, e.g. a test double.
+    """
+    path = Path(reference)
+    if path.suffix == ".safetensors":
+        if not path.is_file():
+            raise EdgeExplorerError(f"--predictor {reference}: no such file")
+        try:
+            from edge_explorer.learn.unet import TorchPredictor
+        except ImportError as exc:
+            raise EdgeExplorerError(
+                f"--predictor {reference}: torch weights need the train extra (pip install -e '.[train]'): {exc}"
+            ) from exc
+        return TorchPredictor.from_file(path)
+    if path.is_dir() or path.name == CARD_FILE:
+        from edge_explorer.backends.chain import load_model
+        from edge_explorer.predict.predictor import PredictorRuntime
+
+        return PredictorRuntime(load_model(path))
     module_name, _, attribute = reference.partition(":")
     if not module_name or not attribute:
         raise EdgeExplorerError(
-            f"--predictor {reference!r}: expected module:callable, a Python function from the 256×256 low-res "
-            "window to probabilities (loading trained predictor files comes with the map predictor)"
+            f"--predictor {reference!r}: expected a model folder with card.json, a .safetensors file or "
+            "module:callable (a Python function from the 256×256 low-res window to probabilities)"
         )
     try:
         predictor = getattr(importlib.import_module(module_name), attribute)
@@ -210,7 +237,7 @@ def plan_specs(
 ) -> list[RunSpec]:
     """Every (method, building, run) of a benchmark, building-major so that early results cover every method."""
     if any(m.endswith(PRED_SUFFIX) for m in methods) and predictor is None:
-        raise EdgeExplorerError("the +pred methods need --predictor (module:callable); none was given")
+        raise EdgeExplorerError("the +pred methods need --predictor (e.g. models/predictor); none was given")
     names = [r.name for r in rasters]
     if len(set(names)) != len(names):
         raise EdgeExplorerError("two plans share a name; benchmark records are keyed by plan name")

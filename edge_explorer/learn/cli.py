@@ -73,7 +73,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Explore each plan with a fixed-seed explorer and score the map with the prediction at every "
         "step (DESIGN.md §5, §7).",
     )
-    evp.add_argument("--model", type=Path, required=True, help="predictor weights (.safetensors)")
+    evp.add_argument(
+        "--model", type=Path, required=True, help="weights (.safetensors) or an exported model folder (card.json)"
+    )
     evp.add_argument("--plans", required=True, help="plan reference: test, A-D, a folder, a .yaml/.json")
     evp.add_argument("--json", type=Path, required=True, help="write the figures here")
     evp.add_argument("--plot", type=Path, help="curves (PNG)")
@@ -107,8 +109,9 @@ def _train_predictor(args: argparse.Namespace) -> int:
 
     state = train(load_config(args.config), args.out, args.resume, args.device, args.config, args.max_steps)
     print(
-        f"step {state.step}: {state.samples} samples, {state.wall_s / 3600:.2f} h of training; best val F1 "
-        f"{state.best_val_f1:.4f} at step {state.best_step} → {args.out / 'best.safetensors'}"
+        f"step {state.step}: {state.samples} samples, {state.wall_s / 3600:.2f} h of training; best val score "
+        f"{state.best_score:.4f} (mean F1 from 50 % coverage up) at step {state.best_step} → "
+        f"{args.out / 'best.safetensors'}"
     )
     return 0
 

@@ -13,7 +13,9 @@ Aggregation: per coverage level, the mean over the plans whose flight reached it
 inside of tall furniture is never observable, so not every plan reaches 98 % true coverage).
 
 The predictor is any ``Callable[[int8 256×256 window], float32 probabilities]`` (:data:`edge_explorer.sim.env.
-Predictor`): :class:`~edge_explorer.learn.unet.TorchPredictor` here, the ONNX/TFLite backends elsewhere.
+Predictor`), loaded by :func:`edge_explorer.bench.explore.load_predictor`: the torch weights
+(:class:`~edge_explorer.learn.unet.TorchPredictor`) or an exported model folder (ONNX / TFLite through the backend
+chain, exactly what the daemon runs).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.predictor_data import (
     Explorer,
@@ -172,17 +175,6 @@ def plot_summary(summary: dict, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def load_predictor(path: Path) -> Predictor:
-    """The predictor callable of a weights file (``.safetensors``: torch)."""
-    if not path.exists():
-        raise EdgeExplorerError(f"{path}: no such model file")
-    if path.suffix == ".safetensors":
-        from edge_explorer.learn.unet import TorchPredictor
-
-        return TorchPredictor.from_file(path)
-    raise EdgeExplorerError(f"{path}: unsupported model type {path.suffix!r}; expected .safetensors")
-
-
 def evaluate(
     plans_ref: str,
     predictor: Predictor,
@@ -222,8 +214,12 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     from edge_explorer.cli import write_json
 
     torch.set_num_threads(1)
-    report = evaluate(args.plans, load_predictor(args.model), args.explorer, args.seed, args.limit)
-    report = {"model": str(args.model), "model_sha256": hashlib.sha256(args.model.read_bytes()).hexdigest(), **report}
+    from edge_explorer.bench.explore import load_predictor
+
+    predictor = load_predictor(str(args.model))
+    weights = args.model / CARD_FILE if args.model.is_dir() else args.model
+    report = evaluate(args.plans, predictor, args.explorer, args.seed, args.limit)
+    report = {"model": str(args.model), "model_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(), **report}
     write_json(args.json, report)
     if args.plot:
         plot_summary(

@@ -109,7 +109,8 @@ def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], c
             "samples_seen": state["samples"],
             "epochs": state["samples"] / train_samples,
             "best_step": state["best_step"],
-            "best_val_f1": state["best_val_f1"],
+            "best_val_score": state["best_score"],
+            "selection": "best mean val F1 over the 50-80 %, 80-95 % and >= 95 % coverage bins",
             "wall_time_h": state["wall_s"] / 3600,
             "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} shared cores, CPU only, "
             f"{config['threads']} torch thread(s)",

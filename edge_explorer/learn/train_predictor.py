@@ -12,7 +12,9 @@ capacity) — summed and divided by the batch's total weight. ``init_weights`` s
 
 Validation (every ``val_every_steps``): weighted BCE and the paper's F1 (DESIGN.md §7) of the observed map plus the
 dynamically thresholded prediction (§5), over ``val_samples`` fixed samples of the val split, inside the ego window
-(which holds the whole building). The model with the best mean val F1 is kept as ``best.safetensors``.
+(which holds the whole building). The model with the best :func:`selection_score` — the mean val F1 at 50–80 %,
+80–95 % and ≥ 95 % coverage, so a model must be useful early and not only at the end, and the many low-coverage
+samples (where every model scores low) do not decide — is kept as ``best.safetensors``.
 
 Run folder ``OUT``::
 
@@ -20,7 +22,7 @@ Run folder ``OUT``::
     checkpoint.safetensors    model weights (with BatchNorm) of the last checkpoint
     optimizer.safetensors     AdamW moments; its param groups live in state.json
     state.json                step, epoch, best val F1, samples seen, wall time, written last
-    best.safetensors          the best model by val F1 (BatchNorm folded: the shippable form)
+    best.safetensors          the best model by selection_score (BatchNorm folded: the shippable form)
     train_log.csv, val_log.csv
 
 Data order is a function of (seed, epoch) and augmentation of (seed, epoch, sample), so a resumed run continues
@@ -204,6 +206,15 @@ def validate(model: UNet, dataset: PredictorDataset, indices: list[int], batch_s
     return result
 
 
+SELECTION_BINS = ("val_f1_cov0.50", "val_f1_cov0.80", "val_f1_cov0.95")
+
+
+def selection_score(val: dict) -> float:
+    """The number that picks ``best.safetensors``: mean val F1 over the coverage bins from 50 % up."""
+    scores = [val[key] for key in SELECTION_BINS if val.get(key) is not None]
+    return float(np.mean(scores)) if scores else val["val_f1"]
+
+
 # ---- checkpoints -------------------------------------------------------------------------------------------------
 @dataclass
 class TrainState:
@@ -211,7 +222,7 @@ class TrainState:
     samples: int = 0  # training samples seen
     train_set_size: int = 0  # a resume must see the same data
     wall_s: float = 0.0
-    best_val_f1: float = -1.0
+    best_score: float = -1.0  # selection_score of best.safetensors
     best_step: int = -1
     last_val: dict | None = None
 
@@ -239,6 +250,8 @@ def load_checkpoint(out: Path, model: UNet, optimizer: torch.optim.Optimizer, de
 
     payload = json.loads((out / "state.json").read_text())
     param_groups = payload.pop("param_groups")
+    if "best_val_f1" in payload:  # runs started before selection_score: their best was picked by overall val F1
+        payload["best_score"] = payload.pop("best_val_f1")
     model.load_state_dict(load_file(str(out / "checkpoint.safetensors"), device=device))
     moments = load_file(str(out / "optimizer.safetensors"), device=device)
     per_param: dict[int, dict] = {}
@@ -365,8 +378,8 @@ def train(
                 f"step {state.step}: val loss {val['val_loss']:.4f}, F1 {val['val_f1']:.4f} "
                 f"(observed only {val['val_f1_observed']:.4f})"
             )
-            if val["val_f1"] > state.best_val_f1:
-                state.best_val_f1, state.best_step = val["val_f1"], state.step
+            if selection_score(val) > state.best_score:
+                state.best_score, state.best_step = selection_score(val), state.step
                 _replace_atomically(lambda p: save_unet(model.fused(), p), out / "best.safetensors")
             t_last = time.perf_counter()  # validation time is not training time
         if state.step % config.checkpoint_every_steps == 0 or state.step == stop_step:

@@ -81,9 +81,7 @@ def pad_shift(
     return out
 
 
-def unshift(
-    window: np.ndarray, robot_cell: Cell, map_shape: tuple[int, int], fill: float = np.nan
-) -> np.ndarray:
+def unshift(window: np.ndarray, robot_cell: Cell, map_shape: tuple[int, int], fill: float = np.nan) -> np.ndarray:
     """Inverse of :func:`pad_shift`: the window's values placed back on a map of ``map_shape``.
 
     Map cells the window does not cover get ``fill`` (NaN by default, which thresholding reads as UNKNOWN), so a

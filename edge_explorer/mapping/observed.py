@@ -5,17 +5,23 @@ The high-res map holds what the sensor saw, cell by cell. The low-res map is alw
 FREE, else UNKNOWN (the rule :meth:`~edge_explorer.world.raster.PlanRaster.coarsened` uses for the ground truth,
 so a fully observed map matches the low-res truth). Each scan recomputes only the blocks it touched.
 
-Update rule: the newest observation of a cell wins. A scan is a patch of codes (UNKNOWN where it saw nothing);
-its known cells overwrite the map. This lets a later scan clear a cell that sensor noise once labelled occupied.
+Update rule: OctoMap-style log-odds per high-res cell, with the parameters the daemon's voxel fusion uses
+(:class:`~edge_explorer.mapping.voxels.FusionConfig`: hit 0.7, miss 0.4, clamp 0.12 / 0.97, occupied from 0.5). A
+scan is a patch of codes (UNKNOWN where it saw nothing); each of its known cells adds one hit (OCCUPIED) or one miss
+(FREE) to that cell's log-odds, and the cell's code is OCCUPIED at or above the threshold, FREE below it. A first
+observation therefore decides the code on its own, while a cell seen free many times is no longer flipped by one
+noisy hit (the planar sensor labels neighbours of every return occupied with some probability, DESIGN.md §6) — the
+map the simulator trains with accumulates evidence the way the map the daemon flies with does.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
+from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig
 from edge_explorer.world.grid import CELL_DTYPE, FREE, LOW_RES_M, OCCUPIED, UNKNOWN, GridSpec, resolution_factor
 
 
@@ -36,8 +42,9 @@ def _coarsen_blocks(high, factor, low, lr0, lr1, lc0, lc1):
 
 
 @njit(cache=True)
-def _apply_patch(high, low, factor, patch, row0, col0):
-    """high ← patch wherever the patch is known; recompute the low blocks that changed.
+def _apply_patch(high, logodds, low, factor, patch, row0, col0, hit, miss, clamp_min, clamp_max, threshold):
+    """One hit or miss per known patch cell into ``logodds``; ``high`` ← the resulting codes; recompute the low
+    blocks that changed.
 
     Returns the (rows, cols) of the high-res cells whose code changed.
     """
@@ -46,11 +53,19 @@ def _apply_patch(high, low, factor, patch, row0, col0):
     n = 0
     for i in range(patch.shape[0]):
         for j in range(patch.shape[1]):
-            code = patch[i, j]
-            if code != UNKNOWN and code != high[row0 + i, col0 + j]:
-                high[row0 + i, col0 + j] = code
-                changed_rows[n] = row0 + i
-                changed_cols[n] = col0 + j
+            observed = patch[i, j]
+            if observed == UNKNOWN:
+                continue
+            r, c = row0 + i, col0 + j
+            value = 0 if logodds[r, c] == UNKNOWN_LOGODDS else np.int32(logodds[r, c])
+            value += hit if observed == OCCUPIED else miss
+            value = min(max(value, clamp_min), clamp_max)
+            logodds[r, c] = value
+            code = OCCUPIED if value >= threshold else FREE
+            if code != high[r, c]:
+                high[r, c] = code
+                changed_rows[n] = r
+                changed_cols[n] = c
                 n += 1
     for k in range(n):
         bi = changed_rows[k] // factor
@@ -81,6 +96,8 @@ class ObservedMaps:
     low_grid: GridSpec
     high: np.ndarray  # int8 codes on high_grid
     low: np.ndarray  # int8 codes on low_grid, always coarsen_codes(high, factor)
+    fusion: FusionConfig = FusionConfig()  # the log-odds update (its range settings are not used here)
+    logodds: np.ndarray = field(init=False, repr=False)  # int16 per high cell, UNKNOWN_LOGODDS where unobserved
 
     @classmethod
     def empty(cls, high_grid: GridSpec, low_resolution_m: float = LOW_RES_M) -> ObservedMaps:
@@ -97,6 +114,11 @@ class ObservedMaps:
         self._factor = resolution_factor(self.high_grid.resolution_m, self.low_grid.resolution_m)
         if self.high.shape != self.high_grid.shape or self.low.shape != self.low_grid.shape:
             raise ValueError("map arrays must have their grids' shapes")
+        hit, miss, _, _, _ = self.fusion.scaled_logodds()
+        # maps that start from codes carry one observation's worth of evidence per known cell
+        self.logodds = np.where(self.high == OCCUPIED, hit, np.where(self.high == FREE, miss, UNKNOWN_LOGODDS))
+        self.logodds = self.logodds.astype(np.int16)
+        self._update = self.fusion.scaled_logodds()
 
     @property
     def factor(self) -> int:
@@ -106,16 +128,16 @@ class ObservedMaps:
     def apply_patch(self, row0: int, col0: int, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Write a scan patch whose cell (0, 0) is high-res cell (row0, col0).
 
-        The patch (int8 codes) must lie on the map. Its UNKNOWN cells leave the map unchanged; its known cells
-        replace what was there, and the low-res blocks that changed are recomputed. Returns the (rows, cols) index
-        arrays of the high-res cells whose code changed (for incremental consumers such as
-        :class:`~edge_explorer.mapping.ego.InflatedMap`).
+        The patch (int8 codes) must lie on the map. Its UNKNOWN cells leave the map unchanged; each known cell is
+        one hit or miss for that cell (module docstring), and the low-res blocks that changed are recomputed.
+        Returns the (rows, cols) index arrays of the high-res cells whose code changed (for incremental consumers
+        such as :class:`~edge_explorer.mapping.ego.InflatedMap`).
         """
         rows, cols = self.high.shape
         if row0 < 0 or col0 < 0 or row0 + codes.shape[0] > rows or col0 + codes.shape[1] > cols:
             raise ValueError(f"patch at ({row0}, {col0}) of shape {codes.shape} leaves the map {self.high.shape}")
         patch = np.ascontiguousarray(codes, dtype=CELL_DTYPE)
-        return _apply_patch(self.high, self.low, self._factor, patch, row0, col0)
+        return _apply_patch(self.high, self.logodds, self.low, self._factor, patch, row0, col0, *self._update)
 
     def observed_area_m2(self) -> float:
         """Area of the known cells of the low-res map (the input of dynamic thresholding)."""

@@ -153,3 +153,27 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert main(["bench", "explore", "--methods", "fuel+pred", "--predictor", "no.such.module:f"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot load" in err
+
+
+def test_predictor_loads_from_a_model_folder_weights_or_a_callable(tmp_path):
+    from tests.predict.test_predictor import WINDOW, expected_probability, write_predictor_model
+
+    window = np.zeros((WINDOW, WINDOW), dtype=np.int8)
+    window[3, 4] = 1
+    from_folder = explore.load_predictor(str(write_predictor_model(tmp_path / "predictor").parent))
+    np.testing.assert_allclose(from_folder(window), expected_probability(window), atol=1e-6)
+    assert explore.load_predictor("tests.bench.test_explore:occupied_predictor") is occupied_predictor
+
+    torch = pytest.importorskip("torch")
+    from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
+
+    torch.manual_seed(0)
+    unet = UNet(UNetConfig(channels=(2, 4), head_channels=2)).eval()
+    save_unet(unet, tmp_path / "tiny.safetensors")
+    from_weights = explore.load_predictor(str(tmp_path / "tiny.safetensors"))
+    probs = from_weights(np.zeros((8, 8), dtype=np.int8))
+    assert probs.shape == (8, 8) and ((probs >= 0) & (probs <= 1)).all()
+    with pytest.raises(EdgeExplorerError, match="no such file"):
+        explore.load_predictor(str(tmp_path / "missing.safetensors"))
+    with pytest.raises(EdgeExplorerError, match="model folder"):
+        explore.load_predictor("not-a-reference")

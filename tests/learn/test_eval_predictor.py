@@ -83,7 +83,7 @@ def test_cli_rejects_a_missing_model(tmp_path, capsys):
         )
         == 2
     )
-    assert "no such model" in capsys.readouterr().err
+    assert "no such file" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name", ["nope"])

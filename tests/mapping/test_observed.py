@@ -48,20 +48,38 @@ def test_patches_update_high_and_keep_low_derived(seed):
     grid = GridSpec((0.0, 0.0), 0.05, (22, 31))  # not a multiple of 4: partial low blocks
     maps = ObservedMaps.empty(grid)
     assert maps.low.shape == (6, 8) and maps.factor == 4
+    reference = np.full(grid.shape, np.nan)
     for _ in range(5):
         h, w = int(rng.integers(1, 12)), int(rng.integers(1, 12))
         row0, col0 = int(rng.integers(0, 22 - h + 1)), int(rng.integers(0, 31 - w + 1))
         patch = rng.integers(-1, 2, size=(h, w)).astype(CELL_DTYPE)
         before = maps.high.copy()
         rows, cols = maps.apply_patch(row0, col0, patch)
-        expected = before.copy()
-        window = expected[row0 : row0 + h, col0 : col0 + w]
-        window[patch != UNKNOWN] = patch[patch != UNKNOWN]  # newest known observation wins
+        # reference: one OctoMap hit (+847) or miss (−405) per known cell, clamped to [−1992, 3476], occupied ≥ 0
+        window = reference[row0 : row0 + h, col0 : col0 + w]
+        seen = patch != UNKNOWN
+        window[seen] = np.clip(np.nan_to_num(window[seen]) + np.where(patch[seen] == OCCUPIED, 847, -405), -1992, 3476)
+        expected = np.where(np.isnan(reference), UNKNOWN, np.where(reference >= 0, OCCUPIED, FREE))
         np.testing.assert_array_equal(maps.high, expected)
         changed = np.zeros(grid.shape, dtype=bool)
         changed[rows, cols] = True
         np.testing.assert_array_equal(changed, expected != before)
         np.testing.assert_array_equal(maps.low, coarsen_codes(maps.high, 4))
+
+
+def test_repeated_evidence_outweighs_one_noisy_hit():
+    maps = ObservedMaps.empty(GridSpec((0.0, 0.0), 0.05, (4, 4)))
+    free, occupied = np.full((1, 1), FREE, CELL_DTYPE), np.full((1, 1), OCCUPIED, CELL_DTYPE)
+    maps.apply_patch(0, 0, occupied)
+    assert maps.high[0, 0] == OCCUPIED  # a first observation decides on its own
+    for _ in range(5):
+        maps.apply_patch(0, 0, free)
+    assert maps.high[0, 0] == FREE and maps.low[0, 0] == FREE
+    maps.apply_patch(0, 0, occupied)  # a noise hit on a cell seen free five times
+    assert maps.high[0, 0] == FREE
+    for _ in range(3):
+        maps.apply_patch(0, 0, occupied)  # a real obstacle keeps being seen
+    assert maps.high[0, 0] == OCCUPIED and maps.low[0, 0] == OCCUPIED
 
 
 def test_patch_off_the_map_is_rejected():
