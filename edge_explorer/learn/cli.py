@@ -21,8 +21,20 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], got {value}")
+    return value
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    train = sub.add_parser("train", help="training: predictor-data, predictor, ship-predictor", description=DESCRIPTION)
+    train = sub.add_parser(
+        "train", help="training: predictor-data, predictor, ship-predictor, policy", description=DESCRIPTION
+    )
     tsub = train.add_subparsers(dest="train_command", metavar="WHAT", required=True)
 
     data = tsub.add_parser(
@@ -52,6 +64,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     pred.add_argument("--max-steps", type=_positive_int, help="stop after N steps of this call (resume later)")
     pred.set_defaults(func=_train_predictor)
 
+    pol = tsub.add_parser(
+        "policy",
+        help="train the DRL planner: expert demonstrations, BC warm start, PPO phases 1-2 (checkpoints, --resume)",
+        description="Train the exploration policy from a TOML config; see edge_explorer/learn/configs/policy.toml.",
+    )
+    pol.add_argument("--config", type=Path, required=True, help="TOML config")
+    pol.add_argument(
+        "--out", type=Path, required=True, help="run folder: expert episodes, checkpoint, logs, best actor"
+    )
+    pol.add_argument("--resume", action="store_true", help="continue from OUT/state.json (same config)")
+    pol.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    pol.add_argument("--max-minutes", type=_positive_int, help="stop PPO after N minutes of this call (resume later)")
+    pol.set_defaults(func=_train_policy)
+
     ship = tsub.add_parser(
         "ship-predictor",
         help="copy a run's best weights to models/predictor with card.json (sha256, MACs, metrics, latency)",
@@ -65,7 +91,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     ship.add_argument("--command", default="", help="the training command line, for the card")
     ship.set_defaults(func=_ship_predictor)
 
-    ev = sub.add_parser("eval", help="evaluation: predictor", description="Evaluate trained models.")
+    ship_pol = tsub.add_parser(
+        "ship-policy",
+        help="copy a run's best actor to models/policy with card.json; learning curves to docs/policy",
+        description="Write the shipped policy, its model card and its learning curves from a training run.",
+    )
+    ship_pol.add_argument("--run", type=Path, required=True, help="training run folder (best.safetensors)")
+    ship_pol.add_argument("--out", type=Path, default=Path("models/policy"))
+    ship_pol.add_argument("--eval", type=Path, help="the eval policy JSON of these weights (buildings A-D)")
+    ship_pol.add_argument("--docs", type=Path, default=Path("docs/policy"), help="learning curves and logs here")
+    ship_pol.add_argument("--command", default="", help="the training command line, for the card")
+    ship_pol.set_defaults(func=_ship_policy)
+
+    ev = sub.add_parser("eval", help="evaluation: predictor, policy", description="Evaluate trained models.")
     esub = ev.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
     evp = esub.add_parser(
         "predictor",
@@ -82,7 +120,33 @@ def register(sub: argparse._SubParsersAction) -> None:
     evp.add_argument("--explorer", default="random-goal", help="random-goal (default), frontier or fuel")
     evp.add_argument("--seed", type=int, default=0)
     evp.add_argument("--limit", type=_positive_int, help="only the first N plans")
+    evp.add_argument(
+        "--occupied-noise",
+        type=_probability,
+        default=0.1,
+        metavar="P",
+        help="sensor noise: probability that each neighbour of a detected wall is labelled occupied (default 0.1, "
+        "as in training; 0 shows what the noise costs)",
+    )
     evp.set_defaults(func=_eval_predictor)
+
+    evpol = esub.add_parser(
+        "policy",
+        help="fly the policy and nearest frontier on the benchmark's runs; path at 95 %% coverage, success",
+        description="The policy (deterministic) and the frontier baseline fly the exploration benchmark's runs "
+        "(same start per building, same noise seeds, same ending rule); prints Table I rows and the path ratios.",
+    )
+    evpol.add_argument("--model", type=Path, required=True, help="policy weights (.safetensors)")
+    evpol.add_argument("--plans", default="A,B,C,D", help="plan reference (default A,B,C,D)")
+    evpol.add_argument("--runs", type=_positive_int, default=10, help="runs per building (default 10)")
+    evpol.add_argument("--seed", type=int, default=0, help="benchmark seed (default 0, as bench explore)")
+    evpol.add_argument("--max-steps", type=_positive_int, default=1500, help="step cap per run (default 1500)")
+    evpol.add_argument("--predictor", help="fly drl+pred and frontier+pred with this predictor (as bench explore)")
+    evpol.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
+    evpol.add_argument("--json", type=Path, required=True, help="write the figures here")
+    evpol.add_argument("--markdown", type=Path, help="also write the table here")
+    evpol.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
+    evpol.set_defaults(func=_eval_policy)
 
 
 def _predictor_data(args: argparse.Namespace) -> int:
@@ -112,6 +176,90 @@ def _train_predictor(args: argparse.Namespace) -> int:
         f"step {state.step}: {state.samples} samples, {state.wall_s / 3600:.2f} h of training; best val score "
         f"{state.best_score:.4f} (mean F1 from 50 % coverage up) at step {state.best_step} → "
         f"{args.out / 'best.safetensors'}"
+    )
+    return 0
+
+
+def _train_policy(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.train_policy import load_config, train
+
+    state = train(load_config(args.config), args.out, args.resume, args.device, args.config, args.max_minutes)
+    best = state.best_eval or {}
+    print(
+        f"{state.stage}: {state.timesteps} PPO steps, {state.wall_s / 3600:.2f} h; best val success "
+        f"{best.get('success_rate', float('nan')):.2f} at {state.best_timesteps} steps "
+        f"→ {args.out / 'best.safetensors'}"
+    )
+    return 0
+
+
+def _ship_policy(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.policy_card import ship_policy
+
+    card = ship_policy(args.run, args.out, args.eval, args.command, args.docs)
+    arch = card["architecture"]
+    print(
+        f"{args.out / card['weights']}: {arch['macs'] / 1e6:.0f} MMAC, {arch['params'] / 1e6:.2f} M params, "
+        f"{card['latency_torch_fp32_this_host']['median_ms']:.1f} ms fp32 single-thread; sha256 {card['sha256'][:12]}…"
+    )
+    return 0
+
+
+def _eval_policy(args: argparse.Namespace) -> int:
+    import sys
+
+    from tqdm import tqdm
+
+    from edge_explorer.bench import explore as bench
+    from edge_explorer.cli import write_json
+    from edge_explorer.learn.eval_policy import evaluate_buildings, path_ratios
+    from edge_explorer.learn.policy_net import read_metadata
+    from edge_explorer.learn.predictor_card import sha256_of
+    from edge_explorer.world.catalog import load_buildings
+
+    read_metadata(args.model)  # one-line error for a missing file
+    if args.predictor is not None:
+        bench.load_predictor(args.predictor)
+    config = bench.BenchConfig(max_steps=args.max_steps)
+    rasters = load_buildings(args.plans)
+
+    def progress(iterable, total):
+        return tqdm(iterable, total=total, desc="eval policy", unit="run", mininterval=1.0)
+
+    records, methods = evaluate_buildings(
+        args.model, rasters, args.runs, args.seed, config, args.predictor, args.workers, progress
+    )
+    summary = bench.summarize(records, methods)
+    ratios = path_ratios(summary, methods)
+    table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)
+    print(table, end="")
+    print(
+        "path at 95 % coverage, policy / frontier (avg): "
+        + ", ".join(f"{k} {v:.2f}" if v is not None else f"{k} –" for k, v in ratios.items())
+    )
+    if args.markdown is not None:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(table)
+    if args.plot is not None:
+        title = f"policy vs frontier — {args.plans}, {args.runs} run(s) per building, seed {args.seed}"
+        bench.plot_curves(bench.figure_panels(records, methods), args.plot, config.coverage_goal, title)
+    write_json(
+        args.json,
+        {
+            "command": "edge-explorer " + " ".join(sys.argv[1:]),
+            "model": str(args.model),
+            "model_sha256": sha256_of(args.model),
+            "plans": args.plans,
+            "runs_per_plan": args.runs,
+            "seed": args.seed,
+            "methods": methods,
+            "config": {"coverage_goal": config.coverage_goal, "max_steps": config.max_steps},
+            "ratios": ratios,
+            "table": table,
+            "summary": summary,
+            "failures": bench.failures(records),
+            "runs": [{k: v for k, v in r.items() if k != "curves"} for r in records],
+        },
     )
     return 0
 

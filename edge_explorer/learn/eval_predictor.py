@@ -21,6 +21,7 @@ chain, exactly what the daemon runs).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import math
 import time
@@ -33,6 +34,7 @@ import numpy as np
 from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.predictor_data import (
+    DEFAULT_SENSOR,
     Explorer,
     FlightLimits,
     PlannerExplorer,
@@ -44,6 +46,7 @@ from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS, pad_shift, unshift
 from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.env import Predictor
+from edge_explorer.sim.sensor import SensorConfig
 
 REPORT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95, 0.98)
 BIN_WIDTH = 0.005  # a scan is scored when its true coverage enters a new bin of this width
@@ -88,12 +91,13 @@ def evaluate_plan(
     rng: np.random.Generator,
     thresholds: ThresholdConfig = DEFAULT_THRESHOLDS,
     limits: FlightLimits = EVAL_LIMITS,
+    sensor: SensorConfig = DEFAULT_SENSOR,
 ) -> PlanCurve:
     """Fly one plan and score the map with the thresholded prediction at each new coverage bin."""
     true_coverage: list[float] = []
     series: dict[str, list[float]] = {key: [] for key in SERIES}
     last_bin, steps = -1, 0
-    for s in fly(scene, explorer, rng, limits=limits):
+    for s in fly(scene, explorer, rng, sensor, limits):
         steps = s.step + 1
         coverage_bin = math.floor(s.coverage / BIN_WIDTH + 1e-9)
         if coverage_bin == last_bin:
@@ -182,6 +186,7 @@ def evaluate(
     seed: int = 0,
     limit: int | None = None,
     thresholds: ThresholdConfig = DEFAULT_THRESHOLDS,
+    sensor: SensorConfig = DEFAULT_SENSOR,
 ) -> dict:
     """Fly and score every plan of ``plans_ref``; plan ``k`` uses the seed sequence (seed, k)."""
     from tqdm import tqdm
@@ -192,7 +197,9 @@ def evaluate(
     explorer = make_explorer(explorer_name)
     t0 = time.perf_counter()
     curves = [
-        evaluate_plan(Scene.from_raster(raster), predictor, explorer, np.random.default_rng([seed, k]), thresholds)
+        evaluate_plan(
+            Scene.from_raster(raster), predictor, explorer, np.random.default_rng([seed, k]), thresholds, sensor=sensor
+        )
         for k, raster in enumerate(tqdm(rasters, desc="eval predictor", unit="plan"))
     ]
     return {
@@ -201,6 +208,7 @@ def evaluate(
         "explorer": explorer.name,
         "seed": seed,
         "flight_limits": {"max_steps": EVAL_LIMITS.max_steps, "stall_steps": EVAL_LIMITS.stall_steps},
+        "sensor_occupied_noise_prob": sensor.occupied_noise_prob,
         "thresholds": {"t_f_max": thresholds.t_f_max, "t_o": thresholds.t_o},
         "seconds": time.perf_counter() - t0,
         **summarize(curves),
@@ -218,7 +226,8 @@ def evaluate_cli(args: argparse.Namespace) -> int:
 
     predictor = load_predictor(str(args.model))
     weights = args.model / CARD_FILE if args.model.is_dir() else args.model
-    report = evaluate(args.plans, predictor, args.explorer, args.seed, args.limit)
+    sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=args.occupied_noise)
+    report = evaluate(args.plans, predictor, args.explorer, args.seed, args.limit, sensor=sensor)
     report = {"model": str(args.model), "model_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(), **report}
     write_json(args.json, report)
     if args.plot:

@@ -1,0 +1,102 @@
+"""The policy network: code encoding, extractor shapes, SB3 wiring, safetensors round trip of the actor."""
+
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn.policy_net import (
+    PolicyActor,
+    PolicyFeatures,
+    PolicyNetConfig,
+    encode_codes,
+    load_policy_module,
+    read_metadata,
+    save_policy,
+    sb3_policy_kwargs,
+)
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.world.catalog import plan_to_raster
+from tests.conftest import two_room_plan
+
+TINY = PolicyNetConfig(conv_channels=(4, 8, 8), pi_layers=(16,), vf_layers=(8,))
+
+
+@pytest.fixture(scope="module")
+def env() -> ExplorationEnv:
+    return ExplorationEnv([plan_to_raster(two_room_plan())], EnvConfig(max_steps=20))
+
+
+def test_codes_become_free_occupied_nonflight_channels():
+    codes = torch.tensor([[[-1.0, 0.0, 1.0, 2.0]]])
+    channels = encode_codes(codes)[0, :, 0]
+    expected = torch.tensor([[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=torch.float32)
+    assert torch.equal(channels, expected)
+
+
+def test_default_extractor_flattens_small_and_appends_the_last_action(env):
+    extractor = PolicyFeatures(env.observation_space, PolicyNetConfig().to_dict())
+    assert extractor.features_dim == 64 * 13 * 13 + 6  # strides 4/2/2 on 237×237
+    obs, _ = env.reset(seed=0)
+    batch = {k: torch.as_tensor(np.stack([v, v])).float() for k, v in obs.items()}
+    features = extractor(batch)
+    assert features.shape == (2, extractor.features_dim)
+    assert torch.equal(features[:, -6:], batch["last_action"])
+
+
+def test_extractor_rejects_a_wrong_window(env):
+    with pytest.raises(ValueError, match="expected"):
+        PolicyFeatures(env.observation_space, {**TINY.to_dict(), "window_cells": 100})
+
+
+def test_config_round_trips_and_rejects_unknown_keys():
+    assert PolicyNetConfig.from_dict(TINY.to_dict()) == TINY
+    with pytest.raises(ValueError, match="unknown"):
+        PolicyNetConfig.from_dict({"conv_chanels": [1, 2, 3]})
+    with pytest.raises(ValueError, match="three positive"):
+        PolicyNetConfig(conv_strides=(4, 2))
+
+
+def test_saved_sb3_actor_loads_with_the_same_logits(env, tmp_path):
+    torch.manual_seed(0)
+    model = PPO("MultiInputPolicy", env, policy_kwargs=sb3_policy_kwargs(TINY), n_steps=8, batch_size=8, seed=0)
+    path = tmp_path / "policy.safetensors"
+    save_policy(model.policy, TINY, path, {"note": "test"})
+    actor = load_policy_module(path)
+    assert isinstance(actor, PolicyActor) and not actor.training
+    assert read_metadata(path)["note"] == "test"
+
+    obs, _ = env.reset(seed=1)
+    tensors, _ = model.policy.obs_to_tensor(obs)
+    with torch.no_grad():
+        expected = model.policy.get_distribution(tensors).distribution.logits
+        raw = {k: torch.as_tensor(v, dtype=torch.float32)[None] for k, v in obs.items()}
+        logits = actor(raw["high"], raw["thres"], raw["last_action"])
+    assert logits.shape == (1, 6)
+    # SB3 normalises logits (log-softmax); the argmax and the softmax agree
+    assert torch.allclose(torch.softmax(logits, 1), torch.softmax(expected, 1), atol=1e-6)
+    assert int(logits.argmax()) == int(model.predict(obs, deterministic=True)[0])
+
+
+def test_actor_file_round_trip(tmp_path):
+    torch.manual_seed(1)
+    actor = PolicyActor(TINY).eval()
+    path = tmp_path / "actor.safetensors"
+    save_policy(actor, TINY, path)
+    again = load_policy_module(path)
+    x = torch.randint(-1, 3, (2, 237, 237)).float()
+    last = torch.eye(6)[[0, 3]]
+    with torch.no_grad():
+        assert torch.equal(actor(x, x, last), again(x, x, last))
+
+
+def test_loading_rejects_files_that_are_not_policies(tmp_path):
+    from safetensors.torch import save_file
+
+    other = tmp_path / "other.safetensors"
+    save_file({"w": torch.zeros(1)}, str(other))
+    with pytest.raises(EdgeExplorerError, match="not a policy"):
+        load_policy_module(other)
+    with pytest.raises(EdgeExplorerError, match="no such"):
+        load_policy_module(tmp_path / "missing.safetensors")
