@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     explore.add_argument(
         "--methods",
         default="frontier,fuel",
-        help="comma-separated: frontier, fuel, frontier+pred, fuel+pred (default frontier,fuel)",
+        help="comma-separated: frontier, fuel, drl, each optionally +pred (default frontier,fuel)",
     )
     explore.add_argument(
         "--plans",
@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--predictor",
         help="the +pred methods' predictor: a model folder with card.json (e.g. models/predictor), a .safetensors "
         "file, or module:callable",
+    )
+    explore.add_argument(
+        "--policy", help="the drl methods' policy: a model folder with card.json (e.g. models/policy) or a .safetensors"
     )
     explore.add_argument("--workers", type=positive_int, help="processes (default: all cores)")
     explore.add_argument("--out-dir", type=Path, help="one JSON record per finished run; a rerun skips recorded runs")
@@ -57,9 +60,11 @@ def _explore(args: argparse.Namespace) -> int:
     methods = bench.parse_methods(args.methods)
     if args.predictor is not None:
         bench.load_predictor(args.predictor)  # fail now, with one line, not in a worker
+    if args.policy is not None:
+        bench.load_policy(args.policy)
     config = bench.BenchConfig(max_steps=args.max_steps)
     rasters = load_buildings(args.plans)
-    specs = bench.plan_specs(rasters, methods, args.runs, args.seed, config, args.predictor)
+    specs = bench.plan_specs(rasters, methods, args.runs, args.seed, config, args.predictor, args.policy)
     workers = args.workers or bench.default_workers()
 
     def progress(iterable, total):
@@ -91,6 +96,7 @@ def _explore(args: argparse.Namespace) -> int:
                 "coverage_goal": config.coverage_goal,
                 "max_steps": config.max_steps,
                 "predictor": args.predictor,
+                "policy": args.policy,
             },
             "summary": summary,
             "failures": failed,

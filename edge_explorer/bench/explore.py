@@ -42,6 +42,7 @@ from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster, clearance_m
 
 PRED_SUFFIX = "+pred"
+DRL = "drl"  # the learned policy (DESIGN.md §6): acts on the simulator's observation, not through a planner
 RECORD_FORMAT = "edge-explorer/explore-run"
 CURVE_STEP_M = 0.5  # path-length spacing of the mean curves
 START_CLEARANCE_M = 0.5  # from the start pose to the nearest wall
@@ -72,6 +73,7 @@ class RunSpec:
     coverage_goal: float
     max_steps: int
     predictor: str | None  # reference for +pred methods (see load_predictor)
+    policy: str | None = None  # reference for the drl methods (see load_policy)
 
     @property
     def record_name(self) -> str:
@@ -93,7 +95,8 @@ def parse_methods(text: str) -> list[str]:
 
 
 def _known_methods() -> list[str]:
-    return [*PLANNERS, *(name + PRED_SUFFIX for name in PLANNERS)]
+    bases = [*PLANNERS, DRL]
+    return [*bases, *(name + PRED_SUFFIX for name in bases)]
 
 
 def _derived_seed(seed: int, plan_name: str, *slot: int) -> int:
@@ -169,15 +172,51 @@ def load_predictor(reference: str) -> Predictor:
     return predictor
 
 
+Policy = Callable[[dict[str, np.ndarray]], int]  # the simulator's observation → one of the six action ids
+
+
+def load_policy(reference: str) -> Policy:
+    """The policy named by ``reference``: a model folder (``models/policy``) or its ``card.json`` — the exported
+    artifacts through the backend chain, as the daemon runs them — or a ``.safetensors`` actor of
+    :func:`~edge_explorer.learn.policy_net.load_policy_module` (torch, ``train`` extra). The action is the argmax
+    of the logits, the policy's deterministic choice."""
+    path = Path(reference)
+    if path.suffix == ".safetensors":
+        if not path.is_file():
+            raise EdgeExplorerError(f"--policy {reference}: no such file")
+        try:
+            from edge_explorer.learn.policy_net import TorchPolicy
+        except ImportError as exc:
+            raise EdgeExplorerError(
+                f"--policy {reference}: torch weights need the train extra (pip install -e '.[train]'): {exc}"
+            ) from exc
+        return TorchPolicy.from_file(path)
+    if path.is_dir() or path.name == CARD_FILE:
+        from edge_explorer.backends.chain import load_model
+        from edge_explorer.plan.policy import PolicyRuntime
+
+        return PolicyRuntime(load_model(path)).act
+    raise EdgeExplorerError(f"--policy {reference!r}: expected a model folder with card.json or a .safetensors actor")
+
+
 # ---- one run ------------------------------------------------------------------------------------------------------
-def run_episode(raster: PlanRaster, spec: RunSpec, predictor: Predictor | None = None) -> dict[str, Any]:
-    """Fly one run and return its record: the spec, how it ended, and the per-step curves."""
+def run_episode(
+    raster: PlanRaster, spec: RunSpec, predictor: Predictor | None = None, policy: Policy | None = None
+) -> dict[str, Any]:
+    """Fly one run and return its record: the spec, how it ended, and the per-step curves.
+
+    A planner method decides from the observed map; the ``drl`` methods call ``policy`` on the observation."""
     method = spec.method.removesuffix(PRED_SUFFIX)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps)  # the run, not the env, decides when to stop
     env = ExplorationEnv([raster], config, predictor=predictor)
-    planner = PLANNERS[method](env.table)
-    planner.reset()
-    _, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
+    if method == DRL:
+        if policy is None:
+            raise EdgeExplorerError(f"{spec.method} needs a policy")
+        planner = None
+    else:
+        planner = PLANNERS[method](env.table)
+        planner.reset()
+    observation, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
     coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
     previous, collisions, planner_s = 0, 0, 0.0
     start = time.perf_counter()
@@ -189,12 +228,12 @@ def run_episode(raster: PlanRaster, spec: RunSpec, predictor: Predictor | None =
             ending = "step_cap"
             break
         t = time.perf_counter()
-        action = planner.act(env.maps, env.pose, previous)
+        action = policy(observation) if planner is None else planner.act(env.maps, env.pose, previous)
         planner_s += time.perf_counter() - t
         if action is None:
             ending = "explored"
             break
-        _, _, _, _, info = env.step(action)
+        observation, _, _, _, info = env.step(action)
         collisions += int(info["collided"])
         previous = 0 if info["collided"] else action  # after a collision the vehicle has stopped
         coverage.append(info["coverage"])
@@ -234,10 +273,13 @@ def plan_specs(
     seed: int,
     config: BenchConfig = BenchConfig(),
     predictor: str | None = None,
+    policy: str | None = None,
 ) -> list[RunSpec]:
     """Every (method, building, run) of a benchmark, building-major so that early results cover every method."""
     if any(m.endswith(PRED_SUFFIX) for m in methods) and predictor is None:
         raise EdgeExplorerError("the +pred methods need --predictor (e.g. models/predictor); none was given")
+    if any(m.removesuffix(PRED_SUFFIX) == DRL for m in methods) and policy is None:
+        raise EdgeExplorerError("the drl methods need --policy (e.g. models/policy); none was given")
     names = [r.name for r in rasters]
     if len(set(names)) != len(names):
         raise EdgeExplorerError("two plans share a name; benchmark records are keyed by plan name")
@@ -256,12 +298,14 @@ def plan_specs(
                         config.coverage_goal,
                         config.max_steps,
                         predictor if method.endswith(PRED_SUFFIX) else None,
+                        policy if method.removesuffix(PRED_SUFFIX) == DRL else None,
                     )
                 )
     return specs
 
 
 _WORKER_PREDICTORS: dict[str, Predictor] = {}
+_WORKER_POLICIES: dict[str, Policy] = {}
 
 
 def _run_task(task: tuple[PlanRaster, RunSpec]) -> dict[str, Any]:
@@ -271,7 +315,12 @@ def _run_task(task: tuple[PlanRaster, RunSpec]) -> dict[str, Any]:
         if spec.predictor not in _WORKER_PREDICTORS:
             _WORKER_PREDICTORS[spec.predictor] = load_predictor(spec.predictor)
         predictor = _WORKER_PREDICTORS[spec.predictor]
-    return run_episode(raster, spec, predictor)
+    policy = None
+    if spec.policy is not None:
+        if spec.policy not in _WORKER_POLICIES:
+            _WORKER_POLICIES[spec.policy] = load_policy(spec.policy)
+        policy = _WORKER_POLICIES[spec.policy]
+    return run_episode(raster, spec, predictor, policy)
 
 
 def _single_thread_worker() -> None:
@@ -285,7 +334,8 @@ def _read_record(path: Path, spec: RunSpec) -> dict[str, Any] | None:
         record = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError):
         return None
-    if record.get("format") != RECORD_FORMAT or record.get("spec") != json.loads(json.dumps(asdict(spec))):
+    stored = {"policy": None, **record.get("spec", {})}  # records from before the drl methods have no policy
+    if record.get("format") != RECORD_FORMAT or stored != json.loads(json.dumps(asdict(spec))):
         return None
     return record
 

@@ -14,73 +14,24 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing
-import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from edge_explorer.bench import explore as bench
-from edge_explorer.learn.policy_net import load_policy_module
-from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.learn.policy_net import TorchPolicy, load_policy_module
+from edge_explorer.sim.env import Predictor
 from edge_explorer.world.raster import PlanRaster
 
 BASELINE = "frontier"
 
 
 def fly_policy(actor: torch.nn.Module, raster: PlanRaster, spec: bench.RunSpec, predictor: Predictor | None) -> dict:
-    """One benchmark run of the policy; the record has the fields of :func:`bench.explore.run_episode`'s."""
-    env = ExplorationEnv([raster], EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps), predictor=predictor)
-    obs, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
-    coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
-    collisions, policy_s = 0, 0.0
-    start = time.perf_counter()
-    while True:
-        if coverage[-1] >= spec.coverage_goal and correct[-1] >= spec.coverage_goal:
-            ending = "goal"
-            break
-        if len(path) > spec.max_steps:
-            ending = "step_cap"
-            break
-        t = time.perf_counter()
-        inputs = (torch.as_tensor(obs[k], dtype=torch.float32)[None] for k in ("high", "thres", "last_action"))
-        with torch.no_grad():
-            logits = actor(*inputs)
-        action = int(logits.argmax())
-        policy_s += time.perf_counter() - t
-        obs, _, _, _, info = env.step(action)
-        collisions += int(info["collided"])
-        coverage.append(info["coverage"])
-        correct.append(info["correct_coverage"])
-        path.append(info["path_length_m"])
-    return {
-        "format": bench.RECORD_FORMAT,
-        "spec": asdict(spec),
-        "ending": ending,
-        "steps": len(path) - 1,
-        "collisions": collisions,
-        "final_coverage": coverage[-1],
-        "final_correct_coverage": correct[-1],
-        "path_length_m": path[-1],
-        "path_at_coverage_m": _first_crossing(coverage, path, spec.coverage_goal),
-        "path_at_correct_coverage_m": _first_crossing(correct, path, spec.coverage_goal),
-        "wall_s": time.perf_counter() - start,
-        "planner_s": policy_s,
-        "curves": {
-            "coverage": np.round(coverage, 5).tolist(),
-            "correct_coverage": np.round(correct, 5).tolist(),
-            "path_length_m": np.round(path, 4).tolist(),
-        },
-    }
-
-
-def _first_crossing(values: Sequence[float], path_m: Sequence[float], goal: float) -> float | None:
-    hits = np.flatnonzero(np.asarray(values) >= goal)
-    return float(path_m[hits[0]]) if len(hits) else None
+    """One benchmark run of the policy; the record of :func:`bench.explore.run_episode`."""
+    return bench.run_episode(raster, spec, predictor, TorchPolicy(actor))
 
 
 _WORKER: dict[str, Any] = {}

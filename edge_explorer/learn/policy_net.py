@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
@@ -225,3 +226,20 @@ def load_policy_module(weights: Path) -> torch.nn.Module:
     except RuntimeError as exc:
         raise EdgeExplorerError(f"{weights}: weights do not match the architecture in its metadata: {exc}") from None
     return actor.eval()
+
+
+class TorchPolicy:
+    """The policy callable of the benchmark (:data:`edge_explorer.bench.explore.Policy`) on the torch actor:
+    the simulator's observation dict → the argmax action, the deterministic choice the daemon makes too."""
+
+    def __init__(self, actor: torch.nn.Module) -> None:
+        self.actor = actor.eval()
+
+    @classmethod
+    def from_file(cls, weights: Path) -> TorchPolicy:
+        return cls(load_policy_module(weights))
+
+    @torch.no_grad()
+    def __call__(self, observation: dict[str, np.ndarray]) -> int:
+        inputs = (torch.as_tensor(observation[k], dtype=torch.float32)[None] for k in ("high", "thres", "last_action"))
+        return int(self.actor(*inputs).argmax())

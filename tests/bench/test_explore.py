@@ -177,3 +177,21 @@ def test_predictor_loads_from_a_model_folder_weights_or_a_callable(tmp_path):
         explore.load_predictor(str(tmp_path / "missing.safetensors"))
     with pytest.raises(EdgeExplorerError, match="model folder"):
         explore.load_predictor("not-a-reference")
+
+
+def test_drl_methods_fly_a_policy_on_the_observation(rooms):
+    with pytest.raises(EdgeExplorerError, match="--policy"):
+        explore.plan_specs([rooms], ["drl"], runs=1, seed=0)
+    spec = explore.plan_specs([rooms], ["drl"], runs=1, seed=0, config=explore.BenchConfig(max_steps=12), policy="p")[0]
+    seen = []
+
+    def turn_left(observation):
+        seen.append({k: v.shape for k, v in observation.items()})
+        return 2
+
+    record = explore.run_episode(rooms, spec, policy=turn_left)
+    assert record["ending"] == "step_cap" and record["steps"] == 12 and record["collisions"] == 0
+    assert len(seen) == 12 and seen[0] == {"high": (237, 237), "thres": (237, 237), "last_action": (6,)}
+    assert record["curves"]["coverage"][-1] > record["curves"]["coverage"][0]  # turning in place still sees more
+    with pytest.raises(EdgeExplorerError, match="--policy"):
+        explore.load_policy("not-a-model")
