@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 PIP    := $(BIN)/python -m pip install --quiet --disable-pip-version-check
 
-.PHONY: demo test venv lint clean
+.PHONY: demo test venv lint clean convert-env
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,19 @@ $(VENV)/.stamp-test: pyproject.toml | $(BIN)/python
 $(VENV)/.stamp-all: pyproject.toml | $(BIN)/python
 	$(PIP) -e '.[dev,bench,train,export]'
 	touch $@
+
+# The TFLite converter (onnx2tf) pins numpy 1.26 and TensorFlow 2.19 (~2.6 GB), so it lives in its own venv that
+# `edge-explorer export` calls as a subprocess; the runtime and training environment never import TensorFlow.
+# onnx2tf 1.29.24 is the last release for Python 3.11 and pins every one of its dependencies exactly.
+CONVERT_VENV := .venv-convert
+
+$(CONVERT_VENV)/.stamp:
+	$(PYTHON) -m venv $(CONVERT_VENV)
+	$(CONVERT_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip
+	$(CONVERT_VENV)/bin/python -m pip install --quiet --disable-pip-version-check onnx2tf==1.29.24
+	touch $@
+
+convert-env: $(CONVERT_VENV)/.stamp
 
 demo: $(VENV)/.stamp-core
 	$(BIN)/edge-explorer run

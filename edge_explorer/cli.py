@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "edge_explorer.learn.cli",
     "edge_explorer.bench.cli",
     "edge_explorer.runtime.cli",
+    "edge_explorer.export.cli",
 )
 
 EXIT_USAGE = 2

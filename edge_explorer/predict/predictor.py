@@ -8,10 +8,13 @@ artifact checked against its model card first), decoded (:func:`~edge_explorer.p
 and put back on the map (:func:`~edge_explorer.mapping.ego.unshift`; cells the window does not cover are NaN,
 which thresholding reads as UNKNOWN).
 
-The window size comes from the model: its one input must be ``[1, 2, S, S]`` (batch may be dynamic) and its one
-output hold ``S × S`` probabilities. A :class:`PredictorRuntime` is also the ``window → probabilities`` callable
-the simulator and the benchmark take (:data:`edge_explorer.sim.env.Predictor`), so an exported model can be flown
-in the training simulator unchanged.
+The window size comes from the model: its one input must be ``[1, 2, S, S]`` (NCHW, as exported to ONNX) or
+``[1, S, S, 2]`` (NHWC, as onnx2tf converts it to TFLite; batch may be dynamic) and its one output hold ``S × S``
+probabilities. The layout is read from the declared input shape and the encoded window is transposed to it here,
+so the TFLite graph needs no transpose op of its own (Edge TPU and XNNPACK run it end to end); an NHWC output is
+moved back to channels-first before decoding. A :class:`PredictorRuntime` is also the ``window → probabilities``
+callable the simulator and the benchmark take (:data:`edge_explorer.sim.env.Predictor`), so an exported model can be
+flown in the training simulator unchanged.
 """
 
 from __future__ import annotations
@@ -41,12 +44,14 @@ class PredictorRuntime:
                 f"{[s.name for s in inputs]} → {[s.name for s in outputs]}"
             )
         shape = inputs[0].shape
-        square = len(shape) == 4 and shape[2] == shape[3] and shape[2] >= 1
-        if not square or shape[0] not in (1, -1) or shape[1] != INPUT_CHANNELS:
+        nchw = len(shape) == 4 and shape[1] == INPUT_CHANNELS and shape[2] == shape[3] >= 1
+        nhwc = len(shape) == 4 and shape[3] == INPUT_CHANNELS and shape[1] == shape[2] >= 1
+        if not (nchw or nhwc) or shape[0] not in (1, -1):
             raise PredictorModelError(
-                f"{model.name}: predictor input {inputs[0].name!r} must be [1, {INPUT_CHANNELS}, S, S] "
-                f"(encoding.encode_windows), got {list(shape)}"
+                f"{model.name}: predictor input {inputs[0].name!r} must be [1, {INPUT_CHANNELS}, S, S] or "
+                f"[1, S, S, {INPUT_CHANNELS}] (encoding.encode_windows), got {list(shape)}"
             )
+        self.channels_last = not nchw
         self.window_cells = int(shape[2])
         out_size = math.prod(d for d in outputs[0].shape if d != -1)
         if out_size != self.window_cells**2:
@@ -63,7 +68,10 @@ class PredictorRuntime:
         if window.shape != (self.window_cells, self.window_cells):
             raise ValueError(f"window shape {window.shape}, the model takes {self.window_cells}×{self.window_cells}")
         batch = encode_windows(window)[np.newaxis]
-        return decode_probabilities(self.model.run({self._input_name: batch})[self._output_name])
+        if self.channels_last:
+            batch = np.ascontiguousarray(batch.transpose(0, 2, 3, 1))
+        out = self.model.run({self._input_name: batch})[self._output_name]
+        return decode_probabilities(np.moveaxis(out, -1, 1) if self.channels_last and out.ndim == 4 else out)
 
     def predict(self, low_codes: np.ndarray, robot_cell: Cell) -> np.ndarray:
         """float32 probabilities on the grid of ``low_codes`` (0.20 m observed map), NaN outside the window."""

@@ -1,0 +1,154 @@
+"""Calibration and held-back observations, recorded from simulator rollouts on the val split (never from data/).
+
+The val split is regenerated deterministically (:func:`edge_explorer.world.dataset.regenerate_split`), so a recipe's
+observations are the same on every machine. Its first ``plans`` plans calibrate the quantizers; the next
+``held_back_plans`` plans, never calibrated on, feed the accuracy gates.
+
+* **Predictor**: each plan is explored by a fixed-seed explorer of :mod:`edge_explorer.learn.predictor_data` (the
+  data generator's :func:`~edge_explorer.learn.predictor_data.collect_plan_samples`: partial maps at coverage levels
+  drawn uniformly), and each recorded map becomes the network's input exactly as in flight: the north-up ego window
+  (:func:`~edge_explorer.mapping.ego.pad_shift`) encoded by :func:`~edge_explorer.predict.encoding.encode_windows`.
+  Held-back samples keep their map, robot cell and plan so the gates can threshold and score them.
+* **Policy**: :class:`~edge_explorer.sim.env.ExplorationEnv` episodes on the plans (with the recipe's predictor
+  filling the thres map, as in phase-2 training), acting with the fp32 policy itself (10 % random actions so the
+  episodes do not repeat one path) or uniformly at random; every ``stride``-th observation is recorded.
+
+Observations are feeds: ``{input name: float32 array with a batch of 1}`` in the ONNX (torch) layout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.export.recipe import CalibrationConfig
+from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS, pad_shift
+from edge_explorer.predict.encoding import encode_windows
+
+Feed = dict[str, np.ndarray]
+POLICY_STEP_STRIDE = 8  # record every 8th step of a policy episode: consecutive observations are near duplicates
+POLICY_RANDOM_ACTION_PROB = 0.1
+
+
+@dataclass(frozen=True)
+class MapSample:
+    """One held-back predictor observation with what the gates need to threshold and score it."""
+
+    observed_low: np.ndarray  # int8 codes on the plan's 0.20 m grid
+    robot_cell: tuple[int, int]
+    observed_area_m2: float
+    truth_low: np.ndarray
+    interior_low: np.ndarray
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Calibration feeds, held-back feeds, and (predictor) the held-back maps behind them."""
+
+    calibration: list[Feed]
+    held_back: list[Feed]
+    maps: list[MapSample]
+    description: dict
+
+
+def val_rasters(config: CalibrationConfig) -> tuple[list, list]:
+    """(calibration plans, held-back plans) as 0.05 m rasters of the regenerated val split."""
+    from edge_explorer.world.catalog import plan_to_raster
+    from edge_explorer.world.dataset import regenerate_split
+
+    plans = regenerate_split(config.split, count=config.plans + config.held_back_plans)
+    rasters = [plan_to_raster(p) for p in plans]
+    return rasters[: config.plans], rasters[config.plans :]
+
+
+def _require(feeds: list, what: str, config: CalibrationConfig) -> None:
+    if not feeds:
+        raise EdgeExplorerError(
+            f"the {what} set is empty ({config.plans} + {config.held_back_plans} val plans, {config.per_plan} per "
+            "plan gave no observation); raise [calibration] plans / per_plan in the recipe"
+        )
+
+
+def predictor_observations(config: CalibrationConfig, input_name: str) -> Observations:
+    """Explore the val plans and record encoded ego windows (see the module docstring)."""
+    from edge_explorer.learn.eval_predictor import make_explorer
+    from edge_explorer.learn.predictor_data import SampleConfig, Scene, collect_plan_samples
+
+    calibration_rasters, held_back_rasters = val_rasters(config)
+    explorer = make_explorer(config.explorer)
+    sample_config = SampleConfig(samples_per_plan=config.per_plan, seed=config.seed)
+
+    def samples(rasters: list, offset: int, desc: str) -> Iterator[tuple[Scene, object]]:
+        for k, raster in enumerate(tqdm(rasters, desc=desc, unit="plan")):
+            scene = Scene.from_raster(raster)
+            rng = np.random.default_rng([config.seed, offset + k])
+            for sample in collect_plan_samples(scene, [explorer], rng, sample_config):
+                yield scene, sample
+
+    def feed(sample) -> Feed:
+        window = pad_shift(sample.observed_low, sample.robot_cell, PREDICTOR_WINDOW_CELLS)
+        return {input_name: encode_windows(window)[np.newaxis]}
+
+    calibration = [feed(s) for _, s in samples(calibration_rasters, 0, "calibration rollouts")]
+    held_back, maps = [], []
+    for scene, s in samples(held_back_rasters, len(calibration_rasters), "held-back rollouts"):
+        held_back.append(feed(s))
+        maps.append(MapSample(s.observed_low, s.robot_cell, s.observed_area_m2, scene.truth_low, scene.interior_low))
+    _require(calibration, "calibration", config)
+    _require(held_back, "held-back", config)
+    description = _describe(config, calibration_rasters, held_back_rasters, len(calibration), len(held_back))
+    return Observations(calibration, held_back, maps, description)
+
+
+def policy_observations(
+    config: CalibrationConfig,
+    act: Callable[[dict[str, np.ndarray]], int],
+    predictor: Callable[[np.ndarray], np.ndarray] | None,
+) -> Observations:
+    """Roll the exploration env out on the val plans and record every ``POLICY_STEP_STRIDE``-th observation."""
+    from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+
+    calibration_rasters, held_back_rasters = val_rasters(config)
+
+    def rollouts(rasters: list, offset: int, desc: str) -> list[Feed]:
+        env = ExplorationEnv(rasters, EnvConfig(), predictor=predictor)
+        feeds: list[Feed] = []
+        for k in tqdm(range(len(rasters)), desc=desc, unit="plan"):
+            rng = np.random.default_rng([config.seed, offset + k])
+            obs, _ = env.reset(seed=config.seed * 100_003 + offset + k, options={"plan_index": k})
+            recorded = 0
+            for step in range(config.per_plan * POLICY_STEP_STRIDE):
+                if step % POLICY_STEP_STRIDE == 0:
+                    feeds.append({name: np.asarray(v, dtype=np.float32)[np.newaxis] for name, v in obs.items()})
+                    recorded += 1
+                explore = config.explorer == "random" or rng.random() < POLICY_RANDOM_ACTION_PROB
+                action = int(rng.integers(6)) if explore else act(obs)
+                obs, _, terminated, truncated, _ = env.step(action)
+                if terminated or truncated:
+                    break
+        return feeds
+
+    calibration = rollouts(calibration_rasters, 0, "calibration rollouts")
+    held_back = rollouts(held_back_rasters, len(calibration_rasters), "held-back rollouts")
+    _require(calibration, "calibration", config)
+    _require(held_back, "held-back", config)
+    description = _describe(config, calibration_rasters, held_back_rasters, len(calibration), len(held_back))
+    description["step_stride"] = POLICY_STEP_STRIDE
+    description["predictor"] = None if config.predictor is None else str(config.predictor)
+    return Observations(calibration, held_back, [], description)
+
+
+def _describe(config: CalibrationConfig, cal: list, held: list, n_cal: int, n_held: int) -> dict:
+    return {
+        "source": f"simulator rollouts on the regenerated {config.split} split (dataset seed 0)",
+        "explorer": config.explorer,
+        "seed": config.seed,
+        "calibration_plans": [r.name for r in cal],
+        "held_back_plans": [r.name for r in held],
+        "calibration_observations": n_cal,
+        "held_back_observations": n_held,
+    }
