@@ -78,11 +78,13 @@ class PolicyNetConfig:
 def encode_codes(codes: torch.Tensor) -> torch.Tensor:
     """[B, H, W] float cell codes → [B, 3, H, W] 0/1 channels (free, occupied, non-flight); unknown is all zero.
 
-    With integer codes x ∈ {−1, 0, 1, 2}: free = relu(−x), occupied = relu(x) − 2·relu(x − 1),
+    With integer codes x ∈ {−1, 0, 1, 2}: free = relu(x) − x (= relu(−x), written so the converter keeps it in
+    int8: a negated input stays float in TFLite and falls off the Edge TPU), occupied = relu(x) − 2·relu(x − 1),
     non-flight = relu(x − 1). Only ReLUs and sums, so the exported graph stays quantization-friendly.
     """
+    above_zero = torch.relu(codes)
     above_one = torch.relu(codes - 1.0)
-    return torch.stack([torch.relu(-codes), torch.relu(codes) - 2.0 * above_one, above_one], dim=1)
+    return torch.stack([above_zero - codes, above_zero - 2.0 * above_one, above_one], dim=1)
 
 
 class MapEncoder(nn.Module):
