@@ -153,6 +153,29 @@ def plot_learning_curves(run_dir: Path, png: Path) -> None:
     plt.close(fig)
 
 
+FLIGHT_READY_SUCCESS = 0.95  # DESIGN.md / issue #7: ≥ 95 % of runs reach 95 % coverage, and no collision at all
+
+
+def flight_ready(buildings: dict | None) -> dict:
+    """Whether the daemon may fly this policy by default (``edge-explorer run --planner auto``), and why.
+
+    Ready means the building evaluation of these weights reached 95 % coverage in at least
+    :data:`FLIGHT_READY_SUCCESS` of its runs without a single collision; otherwise ``auto`` flies the frontier
+    planner and ``--planner drl`` must be asked for explicitly.
+    """
+    if buildings is None:
+        return {"ready": False, "why": "no building evaluation of these weights (ship-policy --eval)"}
+    drl = next((v for k, v in buildings["summary_all"].items() if k.startswith("drl")), None)
+    if drl is None:
+        return {"ready": False, "why": "the building evaluation has no drl method"}
+    ready = drl["success_rate"] >= FLIGHT_READY_SUCCESS and drl["collisions"] == 0
+    why = (
+        f"building evaluation: success {drl['success_rate']:.0%} (needs ≥ {FLIGHT_READY_SUCCESS:.0%}), "
+        f"{drl['collisions']} collisions (needs 0) over {drl['runs']} runs"
+    )
+    return {"ready": ready, "why": why}
+
+
 def ship_policy(run_dir: Path, out_dir: Path, evaluation: Path | None, command: str, docs_dir: Path | None) -> dict:
     """Copy ``run_dir/best.safetensors`` to ``out_dir`` with ``card.json``; curves and logs to ``docs_dir``."""
     best = run_dir / "best.safetensors"
@@ -192,7 +215,7 @@ def ship_policy(run_dir: Path, out_dir: Path, evaluation: Path | None, command: 
             "OCCUPIED 1, NON_FLIGHT 2 (mapping.ego.encode_observation)",
             "thres": "float32 [B, 237, 237]: the same at 0.20 m of the inflated thresholded map M_thres",
             "last_action": "float32 [B, 6]: one-hot of the previous action",
-            "encoding_inside_network": "free = relu(−x), occupied = relu(x) − 2·relu(x − 1), non-flight = "
+            "encoding_inside_network": "free = relu(x) − x, occupied = relu(x) − 2·relu(x − 1), non-flight = "
             "relu(x − 1) per layer (policy_net.encode_codes)",
         },
         "output": {
@@ -225,6 +248,7 @@ def ship_policy(run_dir: Path, out_dir: Path, evaluation: Path | None, command: 
             f"{config['threads']} torch thread(s) per process, {config['n_envs']} env workers",
         },
         "evaluation_buildings": buildings,
+        "flight_ready": flight_ready(buildings),
         "latency_torch_fp32_this_host": latency_ms(actor),
         "host": {"machine": platform.machine(), "python": platform.python_version(), "torch": torch.__version__},
     }
