@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "edge_explorer.bench.cli",
     "edge_explorer.runtime.cli",
     "edge_explorer.export.cli",
+    "edge_explorer.profiling.cli",
 )
 
 EXIT_USAGE = 2

@@ -1,14 +1,21 @@
-"""onnxruntime on the CPU: float32 and QDQ-int8 ONNX models (the quantization lives inside the graph)."""
+"""onnxruntime on the CPU: float32 and QDQ-int8 ONNX models (the quantization lives inside the graph).
+
+onnxruntime is imported when a model is loaded, not with this module: the daemon imports every backend of the
+chain, and a run whose models all load on LiteRT or the Edge TPU should not carry its ~17 MB.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import onnxruntime as ort
 
 from edge_explorer.backends.base import InferenceBackend, TensorSpec
+
+if TYPE_CHECKING:
+    import onnxruntime as ort
 
 # onnxruntime's type strings → numpy dtype names.
 _ORT_DTYPES = {
@@ -35,6 +42,8 @@ class OnnxRuntimeCpuBackend(InferenceBackend):
     artifact_format = "onnx"
 
     def load(self, path: Path) -> None:
+        import onnxruntime as ort
+
         options = ort.SessionOptions()
         options.intra_op_num_threads = self.num_threads
         options.inter_op_num_threads = 1

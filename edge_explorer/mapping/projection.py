@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, VoxelGrid
@@ -50,14 +51,38 @@ class HeightBand:
 
 
 def project(voxels: VoxelGrid, band: HeightBand = HeightBand()) -> tuple[np.ndarray, GridSpec]:
-    """(int8 codes [row y, col x], their grid) of ``voxels`` under the column rule of the module docstring."""
+    """(int8 codes [row y, col x], their grid) of ``voxels`` under the column rule of the module docstring.
+
+    The same rule as :func:`project_states`, column by column in one compiled pass over the band's layers (no
+    per-voxel temporaries: the daemon projects its 0.05 m map at every decision, and this keeps it ~1 ms).
+    """
     z = voxels.layer_centers_m()
     layers = band.layers(z)
-    log_odds = voxels.log_odds[:, :, layers]
-    states = np.full(log_odds.shape, UNKNOWN, dtype=CELL_DTYPE)
-    states[log_odds != UNKNOWN_LOGODDS] = FREE
-    states[log_odds >= voxels.threshold_logodds] = OCCUPIED
-    return project_states(states, z[layers] - voxels.resolution_m / 2, band), voxels.grid
+    below_flight = (z[layers] - voxels.resolution_m / 2) < band.flight_z_m
+    codes = np.empty(voxels.shape[:2], dtype=CELL_DTYPE)
+    first = int(layers[0]) if len(layers) else 0
+    _project_kernel(voxels.log_odds, first, len(layers), below_flight, voxels.threshold_logodds, UNKNOWN_LOGODDS, codes)
+    return codes, voxels.grid
+
+
+@numba.njit(cache=True, nogil=True)
+def _project_kernel(log_odds, first, count, below_flight, threshold, unknown, codes):
+    """codes[i, j] ← the column rule over layers first … first + count − 1 (contiguous, as :meth:`HeightBand.layers`
+    returns them) of log_odds[i, j]."""
+    rows, cols = codes.shape
+    for i in range(rows):
+        for j in range(cols):
+            occupied = False
+            seen_below = True
+            for k in range(count):
+                v = log_odds[i, j, first + k]
+                if v == unknown:
+                    if below_flight[k]:
+                        seen_below = False
+                elif v >= threshold:
+                    occupied = True
+                    break
+            codes[i, j] = OCCUPIED if occupied else (FREE if seen_below else UNKNOWN)
 
 
 def project_states(states: np.ndarray, layer_bottoms_m: np.ndarray, band: HeightBand) -> np.ndarray:

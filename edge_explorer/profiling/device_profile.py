@@ -81,11 +81,9 @@ class DeviceProfile:
     source: str = ""
 
     def cpu_speed_ratio_fp32(self, reference: DeviceProfile) -> float:
-        """Single-core peak fp32 throughput of ``reference`` over this device's: > 1 means this device is slower."""
+        """Single-core peak fp32 throughput of ``reference`` over this device's: > 1 means this device is slower.
+        The factor the profiling report scales the reference's measured non-network stages by."""
         return reference.cpu.peak_fp32_gflops_per_core / self.cpu.peak_fp32_gflops_per_core
-
-    def cpu_speed_ratio_int8(self, reference: DeviceProfile) -> float:
-        return reference.cpu.peak_int8_gops_per_core / self.cpu.peak_int8_gops_per_core
 
 
 _SECTIONS: dict[str, type] = {

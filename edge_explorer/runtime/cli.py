@@ -96,11 +96,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--runs", type=_positive(int), default=1, metavar="N", help="with --plans: flights per building (default 1)"
     )
     run.add_argument("--json", type=Path, metavar="PATH", help="with --plans: write the bench figures here")
+    run.add_argument("--markdown", type=Path, metavar="PATH", help="with --plans: the bench as a Markdown page")
+    run.add_argument("--plot", type=Path, metavar="PATH", help="with --plans: the bench's figure (PNG)")
+    run.add_argument(
+        "--compare",
+        type=Path,
+        metavar="PATH",
+        help="with --plans: `bench explore` JSON whose frontier paths the daemon's are compared with "
+        "(default docs/bench/bundled.json)",
+    )
     run.add_argument(
         "--time-limit-s",
         type=_positive(float),
         metavar="S",
-        help="exploration time before flying home (default: DaemonConfig.time_limit_s, 5 min; with --plans 20 min)",
+        help="exploration time before flying home (default: DaemonConfig.time_limit_s, 10 min; with --plans 20 min)",
     )
     run.add_argument("--no-return", action="store_true", help="hover where exploration ends instead of flying home")
     run.add_argument("--out", type=Path, metavar="DIR", help="output folder (default runs/run-<timestamp>/)")
@@ -185,7 +194,7 @@ def _run(args: argparse.Namespace) -> int:
             raise EdgeExplorerError("--plans flies the simulated drone: drop --connect, --source and --record")
         from edge_explorer.runtime.acceptance import run_acceptance
 
-        return run_acceptance(options, args.plans, args.runs, args.json)
+        return run_acceptance(options, args.plans, args.runs, args.json, args.markdown, args.plot, args.compare)
     summary = fly(options)
     print(f"summary: {out / 'summary.json'}, {out / 'summary.png'}")
     return EXIT_SIGINT if summary["ending"] == "interrupted (SIGINT)" else 0
@@ -211,10 +220,10 @@ def fly(options: RunOptions) -> dict[str, Any]:
     """Fly one run as ``edge-explorer run`` does and write its outputs; returns the summary (also in JSON)."""
     from contextlib import ExitStack
 
-    from edge_explorer.bench.explore import run_seed, start_pose
+    from edge_explorer.bench.explore import run_seed
     from edge_explorer.mapping.voxels import VoxelRegion
     from edge_explorer.profiling.device_profile import load_profile
-    from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, choose_models
+    from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
     from edge_explorer.runtime.depth_sources import Recorder
     from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
     from edge_explorer.world.catalog import load_building
@@ -246,7 +255,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
             if options.connect is None:
                 if raster is None:
                     raise ValueError("the simulated vehicle needs a plan")
-                start = start_pose(raster, options.seed)
+                start = _start_pose(options.plan, options.seed)
                 vehicle = stack.enter_context(_simulated_vehicle(raster, start, noise_seed, options.autopilot))
                 connect = f"udpout:127.0.0.1:{vehicle.address[1]}"
             else:
@@ -265,7 +274,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
                 models.policy,
                 models.predictor,
                 truth=CoverageTruth(raster) if raster is not None else None,
-                region=VoxelRegion.covering(raster.grid) if raster is not None else None,
+                region=VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)) if raster is not None else None,
                 recorder=recorder,
             )
             vehicle_cpu0 = _thread_cpu_s(SIM_VEHICLE_THREAD)
@@ -283,6 +292,25 @@ def fly(options: RunOptions) -> dict[str, Any]:
     finally:
         logging.getLogger().removeHandler(file_log)
         file_log.close()
+
+
+def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
+    """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.bench.explore.start_pose`), drawn in
+    a forked child process: the draw builds the training simulator (~50 MB), which belongs to the simulated world's
+    setup, not to the daemon whose peak RSS the run reports (a real drone starts wherever it stands)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork")) as pool:
+        return pool.submit(_draw_start_pose, plan, seed).result()
+
+
+def _draw_start_pose(plan: str, seed: int) -> tuple[float, float, float]:
+    from edge_explorer.bench.explore import start_pose
+    from edge_explorer.world.catalog import load_building
+
+    x_m, y_m, yaw_rad = start_pose(load_building(plan), seed)
+    return float(x_m), float(y_m), float(yaw_rad)
 
 
 def _simulated_vehicle(raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any:
@@ -393,6 +421,7 @@ def _summary(
     daemon_cpu_s = report.process_cpu_s - vehicle_cpu_s - (report.source_cpu_s if simulated else 0.0)
     stages = {name: vars(s) for name, s in report.stages.items()}
     decision = report.stages.get("decision")
+    decision_cpu = report.stages.get("decision_cpu")
     return {
         "format": "edge-explorer/run-summary",
         "command": "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None,
@@ -425,6 +454,7 @@ def _summary(
         "frames_dropped": report.frames_dropped,
         "holds": report.holds,
         "decision_latency_ms": None if decision is None else {"p50": decision.p50_ms, "p95": decision.p95_ms},
+        "decision_cpu_ms": None if decision_cpu is None else {"p50": decision_cpu.p50_ms, "p95": decision_cpu.p95_ms},
         "stages_ms": stages,
         "cpu": {
             "daemon_percent_of_one_core": 100 * daemon_cpu_s / report.wall_s,

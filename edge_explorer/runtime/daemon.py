@@ -14,7 +14,9 @@ One process, one loop (:class:`Daemon`), no torch. Around the loop the parts it 
   run the policy (or the Nearest Frontier planner), turn the action into a waypoint through the action table, check
   it on the observed high-res map (:mod:`edge_explorer.plan.waypoint`: the policy's choice, else the frontier
   planner's, else hover, else hold) and plan a minimum-jerk segment to it
-  (:func:`~edge_explorer.plan.trajectory.min_jerk_segment`).
+  (:func:`~edge_explorer.plan.trajectory.min_jerk_segment`). Without a policy the waypoint does not depend on the
+  prediction (the frontier planner decides on the observed map, as in the benchmark's ``+pred`` methods), so the
+  predictor then runs right after the waypoint is out, off the frame-in → waypoint-out path.
 * **Setpoints**: :class:`SetpointFeeder`, a thread, samples the active segment at the setpoint rate and hands it to
   :meth:`~edge_explorer.runtime.mavlink_link.MavlinkLink.set_target`; the link streams it (with its heartbeat) to
   the autopilot.
@@ -44,10 +46,15 @@ started afresh (and home is moved by the jump); frames are not fused for ``jump_
 input is back; after ``max_hold_s`` without it, it ends the flight (its last setpoint is a hold; once setpoints
 stop, the autopilot's own failsafe takes over). If the autopilot leaves OFFBOARD while the link is healthy, a pilot
 or a failsafe took over: the daemon ends the run instead of taking control back; if it left OFFBOARD because the
-link was lost, the daemon re-engages OFFBOARD once the link is back.
+link was lost, or right after the daemon's own setpoint stream stalled (the process got no CPU time for 0.5 s:
+PX4's offboard-loss failsafe), the daemon re-engages OFFBOARD once the link is back.
+
+**A policy that makes no progress** (the observed area grew by less than ``policy_min_gain_m2`` over its last
+``policy_window`` decisions) hands over to the frontier planner for the rest of the flight, said in the log.
 
 **The end.** Exploration ends at ``coverage_goal`` (predicted coverage with a predictor, observed without), at
-``time_limit_s``, or when the frontier planner has nothing left; the daemon then flies home (the take-off point,
+``time_limit_s``, or when the frontier planner has nothing left (after giving the targets it dropped
+``frontier_retries`` more chances while frontier cells remain); the daemon then flies home (the take-off point,
 along a path over observed free space, with the same six actions) and hovers there for ``home_hover_s``.
 :meth:`Daemon.request_stop` (SIGINT/SIGTERM) ends the loop at once with a hold.
 
@@ -57,6 +64,7 @@ Every stage is timed (:class:`StageTimings`, reused by the profiling report) and
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import threading
@@ -80,6 +88,7 @@ from edge_explorer.mapping.projection import HeightBand, align_to_grid, project
 from edge_explorer.mapping.voxels import FusionConfig, FusionInputError, VoxelMaps, VoxelRegion
 from edge_explorer.plan.baselines import make_planner
 from edge_explorer.plan.follow import FollowConfig, FreeSpace, choose_action
+from edge_explorer.plan.frontier import frontier_mask
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.trajectory import MinJerkSegment, TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import WaypointPlanner, path_home
@@ -97,7 +106,9 @@ log = logging.getLogger(__name__)
 
 # Stage names of :class:`StageTimings`. "predictor": its ego window (pad + shift, unshift) and the network; "ego": the
 # policy observation (rotate, crop, inflate); "planner": the Nearest Frontier planner or the way home;
-# "decision": the whole frame-in → waypoint-out latency of a decision (the triggering frame's fusion included).
+# "decision": the whole frame-in → waypoint-out latency of a decision (the triggering frame's fusion included);
+# "decision_cpu": the CPU time the loop's thread spent on it (all of its work runs on that thread), which does not
+# grow when other processes compete for the cores — the wall-clock latency does.
 STAGES: tuple[str, ...] = (
     "fuse",
     "project",
@@ -110,8 +121,11 @@ STAGES: tuple[str, ...] = (
     "waypoint_trajectory",
     "mavlink_io",
     "decision",
+    "decision_cpu",
 )
 AUTOPILOT_MODES = {"px4": PX4_OFFBOARD_MODE, "ardupilot": "GUIDED"}
+# A mode change this soon after our setpoint stream stalled is the autopilot's reaction to the stall, not a pilot's.
+STALL_BLAME_S = 3.0
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -124,7 +138,7 @@ class DaemonConfig:
     """How the daemon flies and when it stops. Times in seconds, distances in metres (map frame)."""
 
     coverage_goal: float = 0.95
-    time_limit_s: float = 300.0  # exploration time after take-off: the demo on building A takes ~6 min in all
+    time_limit_s: float = 600.0  # exploration time after take-off; the demo on building A reaches 95 % in ~5 min
     return_home: bool = True
     home_hover_s: float = 2.0
     return_time_limit_s: float = 180.0
@@ -142,6 +156,11 @@ class DaemonConfig:
     reanchor_distance_m: float = 0.5
     footprint_clear_m: float = 0.2  # flown space counted as free (below the 0.25 m robot radius; 0 disables)
     policy_hover_limit: int = 3  # consecutive policy hovers after which the frontier planner decides
+    frontier_retries: int = 1  # times the frontier planner's dropped targets get another chance before "explored"
+    # The policy hands over to the frontier planner for the rest of the flight when the observed area grew by less
+    # than policy_min_gain_m2 over its last policy_window decisions (0 disables the watchdog).
+    policy_window: int = 60
+    policy_min_gain_m2: float = 8.0  # the frontier planner observes ~25 m² a minute on A-D, ~5 near the end
     progress_every_s: float = 5.0
     band: HeightBand = field(default_factory=HeightBand)
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -153,6 +172,8 @@ class DaemonConfig:
             raise ValueError(f"coverage_goal must be in (0, 1], got {self.coverage_goal}")
         if self.autopilot not in AUTOPILOT_MODES:
             raise ValueError(f"autopilot must be one of {sorted(AUTOPILOT_MODES)}, got {self.autopilot!r}")
+        if min(self.frontier_retries, self.policy_hover_limit, self.policy_window, self.policy_min_gain_m2) < 0:
+            raise ValueError("frontier_retries, policy_hover_limit, policy_window and policy_min_gain_m2 must be ≥ 0")
         if self.setpoint_rate_hz < 10:
             raise ValueError(f"setpoint_rate_hz must be ≥ 10 (DESIGN.md §8), got {self.setpoint_rate_hz}")
         positive = (
@@ -453,6 +474,9 @@ class Daemon:
         self._explore_end_s: float | None = None
         self._previous_action = int(Action.HOVER)
         self._policy_hovers = 0
+        self._frontier_retries = 0
+        self._policy_areas_m2: list[float] = []  # observed area at each policy decision (the watchdog's window)
+        self._policy_handed_over = False
         self._hold_reason: str | None = None
         self._hold_since_s = 0.0
         self._holds: list[dict[str, Any]] = []
@@ -523,7 +547,8 @@ class Daemon:
     def _iterate(self) -> None:
         cpu0 = time.thread_time()
         frame = self.source.next_frame(timeout_s=0.1)
-        self._source_cpu_s += time.thread_time() - cpu0
+        frame_in_cpu_s = time.thread_time()
+        self._source_cpu_s += frame_in_cpu_s - cpu0
         frame_in_s = time.monotonic()
         if frame is None and self.source.finished:
             self._stop_reason = self._stop_reason or "replay finished"
@@ -542,7 +567,7 @@ class Daemon:
         if self._phase == "takeoff":
             self._check_takeoff_done()
         elif self._decision_due(time.monotonic()):
-            self._decide(frame_in_s)
+            self._decide(frame_in_s, frame_in_cpu_s)
 
     def _check_inputs(self, now: float) -> str | None:
         """Why the daemon must hold position now (None when every input is healthy)."""
@@ -578,11 +603,23 @@ class Daemon:
         return self._mode_problem(status)
 
     def _mode_problem(self, status: LinkStatus) -> str | None:
-        """Hold while the autopilot is not in the external-control mode; end the run if a pilot took over."""
+        """Hold while the autopilot is not in the external-control mode; end the run if a pilot took over.
+
+        The autopilot also leaves it on its own when our setpoint stream stops (PX4's offboard-loss failsafe): after
+        a link loss, or when this process got no CPU time for longer than the stream may pause
+        (:data:`~edge_explorer.runtime.mavlink_link.STREAM_STALL_S`). Then the daemon takes control back once the
+        stream is healthy; otherwise a pilot or another failsafe acted and the run ends.
+        """
         wanted = AUTOPILOT_MODES[self.config.autopilot]
         if status.armed and status.mode == wanted:
             self._link_lost_in_control = False
             return None
+        if status.setpoint_stall is not None and time.monotonic() - status.setpoint_stall[0] < STALL_BLAME_S:
+            self._link_lost_in_control = True
+            return (
+                f"autopilot in {status.mode or 'unknown mode'} after our setpoint stream stalled for "
+                f"{status.setpoint_stall[1]:.1f} s: re-engaging {wanted}"
+            )
         if self._link_lost_in_control:
             return f"autopilot in {status.mode or 'unknown mode'} after the link loss: re-engaging {wanted}"
         self._stop_reason = f"pilot took over (autopilot left {wanted} for {status.mode or 'an unknown mode'})"
@@ -690,7 +727,8 @@ class Daemon:
         assert pose is not None
         self._home_xy = (pose.x_m, pose.y_m)
         if self._region is None:
-            self._region = VoxelRegion(origin_xyz_m=(pose.x_m - 12.0, pose.y_m - 7.0, -0.1))
+            z_min_m, z_max_m = band_z_range_m(self.config.band)
+            self._region = VoxelRegion((pose.x_m - 12.0, pose.y_m - 7.0, z_min_m), (24.0, 14.0, z_max_m - z_min_m))
         self._new_maps()
         self._last_fused_s = time.monotonic()
         log.info(
@@ -767,7 +805,7 @@ class Daemon:
         z = self.config.flight_height_m
         return TrajectoryState.at_rest(odometry.x_m, odometry.y_m, z, odometry.yaw_rad), now
 
-    def _decide(self, frame_in_s: float) -> None:
+    def _decide(self, frame_in_s: float, frame_in_cpu_s: float) -> None:
         assert self.maps is not None
         cfg, timed = self.config, self.timings.timed
         now = time.monotonic()
@@ -783,15 +821,14 @@ class Daemon:
         maps = ObservedMaps(high_grid, low_grid, high, low)
         high_cell = _cell(high_grid, pose)
         low_cell = _cell(low_grid, pose)
+        # The prediction feeds the policy's observation and the coverage count. When the frontier planner decides
+        # (no policy, or the policy handed over) the waypoint does not depend on it, so it runs once the waypoint is
+        # out (the coverage goal then ends exploration one decision later).
+        predict_after = self.predictor is not None and self._frontier_decides
         thresholded = None
-        if self.predictor is not None:
-            with timed("predictor"):
-                probabilities = self.predictor.predict(low, low_cell)
-            with timed("thresholding"):
-                thresholded = thresholded_map(probabilities, low, maps.observed_area_m2(), cfg.thresholds)
-        self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
-        self._record_progress(now, odometry, maps, thresholded)
-
+        if not predict_after:
+            thresholded = self._predict(maps, low_cell)
+            self._record_progress(now, odometry, maps, thresholded)
         if self._phase == "exploring":
             self._check_end_of_exploration(now)
         self._candidate_s = 0.0
@@ -811,6 +848,11 @@ class Daemon:
         self._decisions += 1
         self._sources[waypoint.source] = self._sources.get(waypoint.source, 0) + 1
         self.timings.add("decision", time.monotonic() - frame_in_s)
+        self.timings.add("decision_cpu", time.thread_time() - frame_in_cpu_s)
+        if predict_after:
+            thresholded = self._predict(maps, low_cell)
+            self._record_progress(now, odometry, maps, thresholded)
+        self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
         log.debug(
             "decision %d: %s %s → (%.2f, %.2f)",
             self._decisions,
@@ -819,6 +861,24 @@ class Daemon:
             waypoint.x_m,
             waypoint.y_m,
         )
+
+    def _predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
+        """Observed ∪ thresholded prediction on the low-res grid (DESIGN.md §5); None without a predictor."""
+        if self.predictor is None:
+            return None
+        try:
+            with self.timings.timed("predictor"):
+                probabilities = self.predictor.predict(maps.low, low_cell)
+        except Exception as exc:  # noqa: BLE001 - a model that fails in flight must not take the daemon down
+            log.error(
+                "the predictor failed (%s: %s): flying on without it, coverage counts observed cells",
+                type(exc).__name__,
+                exc,
+            )
+            self.predictor = None
+            return None
+        with self.timings.timed("thresholding"):
+            return thresholded_map(probabilities, maps.low, maps.observed_area_m2(), self.config.thresholds)
 
     def _record_progress(
         self, now: float, odometry: Odometry, maps: ObservedMaps, thresholded: np.ndarray | None
@@ -868,7 +928,7 @@ class Daemon:
         """
         previous = self._previous_action
         if self._phase == "exploring":
-            if self.policy is not None:
+            if self.policy is not None and not self._policy_stalled(maps):
                 with self._candidate_stage("ego"):
                     thres = thresholded if thresholded is not None else maps.low
                     observation = observation_from_maps(
@@ -888,7 +948,9 @@ class Daemon:
                     yield "policy", action
             with self._candidate_stage("planner"):
                 action = self.frontier.act(maps, pose, previous)
-            if action is None and self.policy is None:
+                if action is None and self._frontier_decides and self._retry_frontiers(maps):
+                    action = self.frontier.act(maps, pose, previous)
+            if action is None and self._frontier_decides:
                 self._finish_exploring("explored")
             else:
                 yield "frontier", action
@@ -898,6 +960,45 @@ class Daemon:
             yield "home", action
         if self._phase in ("exploring", "returning"):
             yield "hover", int(Action.HOVER)
+
+    @property
+    def _frontier_decides(self) -> bool:
+        """Whether the frontier planner is the one exploring (no policy, or the policy handed over)."""
+        return self.policy is None or self._policy_handed_over
+
+    def _policy_stalled(self, maps: ObservedMaps) -> bool:
+        """The policy's progress watchdog (see :class:`DaemonConfig`): True once the policy has handed over."""
+        cfg = self.config
+        if self._policy_handed_over or cfg.policy_window == 0:
+            return self._policy_handed_over
+        self._policy_areas_m2.append(maps.observed_area_m2())
+        if len(self._policy_areas_m2) > cfg.policy_window:
+            gain_m2 = self._policy_areas_m2[-1] - self._policy_areas_m2.pop(0)
+            if gain_m2 < cfg.policy_min_gain_m2:
+                self._policy_handed_over = True
+                log.warning(
+                    "the policy observed %.1f m² in its last %d decisions: the frontier planner explores from here",
+                    gain_m2,
+                    cfg.policy_window,
+                )
+        return self._policy_handed_over
+
+    def _retry_frontiers(self, maps: ObservedMaps) -> bool:
+        """Whether to give the frontier planner's dropped targets another chance (and reset it) when it has nothing
+        left while frontier cells remain: a target dropped early — unseen from where the vehicle stalled, or cut off
+        by a phantom obstacle since cleared — may be reachable in the map as it is now."""
+        remaining = int(np.count_nonzero(frontier_mask(maps.low)))
+        if remaining == 0 or self._frontier_retries >= self.config.frontier_retries:
+            return False
+        self._frontier_retries += 1
+        log.info(
+            "no reachable frontier left but %d frontier cells remain: retrying the targets given up on (%d/%d)",
+            remaining,
+            self._frontier_retries,
+            self.config.frontier_retries,
+        )
+        self.frontier.reset()
+        return True
 
     def _home_action(self, maps: ObservedMaps, pose: tuple[float, float, float]) -> int | None:
         """The next action along a path home over observed free space; None (and hovering) once there."""
@@ -971,6 +1072,18 @@ def _cell(grid: GridSpec, pose: tuple[float, float, float]) -> tuple[int, int]:
     return int(row), int(col)
 
 
+def band_z_range_m(band: HeightBand) -> tuple[float, float]:
+    """The height the voxel maps cover: the projected band and one 0.20 m layer either side, on the 0.20 m layer
+    boundaries of the band (so both resolutions project exactly the band's layers).
+
+    Nothing outside the band is projected, and rays are clipped to the maps' box, so floor and ceiling returns still
+    carve the free space they cross inside it; a box 1.4 m tall instead of floor-to-ceiling cuts the voxel memory
+    (0.05 m: 2 bytes of log-odds and 2 of update stamp per voxel) and the ray traversal by more than half.
+    """
+    layers = math.ceil((band.max_z_m - band.min_z_m) / LOW_RES_M - 1e-9)
+    return band.min_z_m - LOW_RES_M, band.min_z_m + (layers + 1) * LOW_RES_M
+
+
 class ModelSetupError(EdgeExplorerError):
     """The models the user asked for cannot be used."""
 
@@ -984,14 +1097,27 @@ class ModelChoice:
     notes: tuple[str, ...]
 
 
+def _flight_ready(card: Path) -> tuple[bool, str]:
+    """(ready, why) from a policy card's ``flight_ready`` record; a card without one is not ready."""
+    try:
+        record = json.loads(card.read_text()).get("flight_ready")
+    except (OSError, ValueError, AttributeError) as exc:
+        return False, f"{card} is unreadable ({exc})"
+    if not isinstance(record, dict) or not isinstance(record.get("ready"), bool):
+        return False, f"{card} records no flight_ready evaluation"
+    return record["ready"], str(record.get("why", ""))
+
+
 def choose_models(
     models_dir: Path, planner: str, backend_order: tuple[str, ...], precision: str = "int8", num_threads: int = 1
 ) -> ModelChoice:
     """Load the shipped models the run can use (see DESIGN.md §8 and the module docstring).
 
     ``planner``: ``drl`` needs ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
-    when it is missing or cannot be loaded; ``auto`` uses the policy when it loads and the frontier planner
-    otherwise, saying why; ``frontier`` never loads the policy. The predictor (``models_dir/predictor/card.json``)
+    when it is missing or cannot be loaded; ``auto`` uses the policy only when its card says it is flight-ready
+    (``flight_ready.ready``: the building evaluation of these weights passed, see
+    :func:`edge_explorer.learn.policy_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
+    why; ``frontier`` never loads the policy. The predictor (``models_dir/predictor/card.json``)
     is used when it loads; otherwise the run goes on without it (coverage = observed) and says why.
     """
 
@@ -1008,8 +1134,11 @@ def choose_models(
 
     notes: list[str] = []
     policy = None
+    policy_card = models_dir / "policy" / CARD_FILE
     if planner == "frontier":
         notes.append("planner: frontier (asked for)")
+    elif planner == "auto" and policy_card.is_file() and not (ready := _flight_ready(policy_card))[0]:
+        notes.append(f"planner: frontier (the DRL policy is not flight-ready: {ready[1]}; --planner drl flies it)")
     else:
         policy, said = load("policy", PolicyRuntime)
         if policy is None and planner == "drl":

@@ -54,6 +54,7 @@ log = logging.getLogger(__name__)
 # position + yaw: ignore velocity (bits 3-5), acceleration (6-8) and yaw rate (11); use x, y, z (0-2) and yaw (10).
 TYPE_MASK_POSITION_YAW = 2552
 PX4_OFFBOARD_MODE = "OFFBOARD"
+STREAM_STALL_S = 0.5  # a setpoint gap this long breaks PX4's > 2 Hz offboard rule
 ARDUPILOT_GUIDED_MODE = "GUIDED"
 _SIGNING_EPOCH_UNIX_S = 1420070400  # MAVLink signing timestamps count 10 µs units from 2015-01-01
 _MAX_DATAGRAM_BYTES = 65535
@@ -474,6 +475,9 @@ class LinkStatus:
     messages_ignored: int  # valid messages from other systems or components
     datagrams_bad: int  # malformed, truncated, CRC-failed or unknown datagrams
     signature_rejected: int  # unsigned or wrongly signed messages dropped while signing is on
+    # The latest gap of at least STREAM_STALL_S between two setpoints this link sent (PX4 leaves offboard below 2 Hz):
+    # (host time the stream resumed, gap in seconds); None if there was none. This process was starved of CPU.
+    setpoint_stall: tuple[float, float] | None = None
 
     @property
     def healthy(self) -> bool:
@@ -519,6 +523,8 @@ class MavlinkLink:
         self._odometry_stale_logged = False
         self._intervals_requested_s: float | None = None
         self._setpoints_sent = 0
+        self._last_setpoint_s: float | None = None
+        self._setpoint_stall: tuple[float, float] | None = None
         self._messages_received = 0
         self._messages_ignored = 0
 
@@ -625,6 +631,7 @@ class MavlinkLink:
                 heartbeat_age_s=hb_age,
                 odometry_age_s=odo_age,
                 setpoints_sent=self._setpoints_sent,
+                setpoint_stall=self._setpoint_stall,
                 messages_received=self._messages_received,
                 messages_ignored=self._messages_ignored,
                 datagrams_bad=0 if endpoint is None else endpoint.datagrams_bad,
@@ -760,8 +767,15 @@ class MavlinkLink:
             0.0,
         )
         if endpoint.send(msg):
+            now = time.monotonic()
             with self._lock:
                 self._setpoints_sent += 1
+                gap_s = None if self._last_setpoint_s is None else now - self._last_setpoint_s
+                self._last_setpoint_s = now
+                if gap_s is not None and gap_s >= STREAM_STALL_S:
+                    self._setpoint_stall = (now, gap_s)
+            if gap_s is not None and gap_s >= STREAM_STALL_S:
+                log.warning("setpoint stream stalled for %.2f s (this process got no CPU time)", gap_s)
 
     def _send_heartbeat(self) -> bool:
         endpoint = self._require_endpoint()

@@ -83,11 +83,16 @@ class QuadrotorModel:
     Speed toward the target follows min(v_max, √(a_max·d), 2·d): the braking profile of half the acceleration limit
     blended with a linear approach, so it arrives without overshoot while every velocity change stays within
     a_max·dt. Pitch and roll are the tilt a quadrotor needs for the applied acceleration (FLU: nose down to go
-    forward, left side down to go left).
+    forward, left side down to go left), through the first-order lag of an attitude loop (``TILT_TIME_CONSTANT_S``):
+    the point mass's acceleration jumps between ±a_max from one physics step to the next while it tracks a setpoint
+    stream, and a body cannot follow that — an instantaneous tilt would swing by ±6° at 100 Hz, which the 30 Hz
+    ATTITUDE telemetry cannot describe, so a depth camera rendered at the true attitude and fused with the reported
+    one would put the ceiling 4 m away half a metre too low.
     """
 
     APPROACH_GAIN_PER_S = 2.0
     YAW_GAIN_PER_S = 3.0
+    TILT_TIME_CONSTANT_S = 0.15
 
     def __init__(
         self,
@@ -109,6 +114,7 @@ class QuadrotorModel:
         self.yaw_rate_rad_s = 0.0
         self.pitch_rad = 0.0
         self.roll_rad = 0.0
+        self._tilt_accel_mps2 = (0.0, 0.0)  # the lagged horizontal acceleration the tilt stands for
         self.target: tuple[float, float, float, float] | None = None
         self.collisions = 0
         self.in_contact = False
@@ -147,6 +153,7 @@ class QuadrotorModel:
         if self.target is None or dt_s <= 0:
             self.velocity_mps = [0.0, 0.0, 0.0]
             self.pitch_rad = self.roll_rad = self.yaw_rate_rad_s = 0.0
+            self._tilt_accel_mps2 = (0.0, 0.0)
             return False
         tx, ty, tz, tyaw = self.target
         px, py, pz = self.position_m
@@ -176,13 +183,16 @@ class QuadrotorModel:
             self.collisions += started
             self.velocity_mps = [0.0, 0.0, 0.0]
             self.pitch_rad = self.roll_rad = 0.0
+            self._tilt_accel_mps2 = (0.0, 0.0)
             return started
         # A contact ends once the vehicle is clear of the obstacle by CONTACT_RELEASE_M, so pressing on against
         # a wall counts as one collision, not one per step.
         self.in_contact = self.in_contact and self.hits_obstacle(*new_position[:2], self.radius_m + CONTACT_RELEASE_M)
         self.position_m = new_position
         self.velocity_mps = new_velocity
-        ax, ay = dv[0] / dt_s, dv[1] / dt_s
+        blend = 1.0 - math.exp(-dt_s / self.TILT_TIME_CONSTANT_S)
+        ax, ay = (f + blend * (d / dt_s - f) for f, d in zip(self._tilt_accel_mps2, dv[:2], strict=True))
+        self._tilt_accel_mps2 = (ax, ay)
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
         self.pitch_rad = math.atan2(c * ax + s * ay, GRAVITY_MPS2)
         self.roll_rad = -math.atan2(-s * ax + c * ay, GRAVITY_MPS2)

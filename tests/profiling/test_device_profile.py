@@ -50,6 +50,22 @@ def test_bad_profiles_name_the_problem(mutate, message):
         parse_profile(data, "bad.toml")
 
 
+def test_a_target_cannot_put_an_edge_tpu_it_lacks_first():
+    data = tomllib.loads((PROFILES_DIR / "nuc10-i7-10710u.toml").read_text())
+    data["backends"]["order"] = ["edgetpu", "onnxruntime-cpu"]
+    with pytest.raises(ProfileError, match=re.escape("backend 'edgetpu' comes first but [accelerator] kind")):
+        parse_profile(data, "nuc.toml")
+    data["budgets_ms"]["fuse"] = 0.0
+    with pytest.raises(ProfileError, match="every rate and stage budget must be positive"):
+        parse_profile(data, "nuc.toml")
+
+
+def test_peak_ratios_are_host_over_target():
+    host, coral = load_profile("host"), load_profile("coral-usb")
+    assert coral.cpu_speed_ratio_fp32(host) == pytest.approx(83.0 / 12.0)
+    assert host.cpu_speed_ratio_fp32(host) == 1.0
+
+
 def test_unknown_profile_lists_known(tmp_path):
     with pytest.raises(ProfileError, match="not found .*host"):
         load_profile("mars-rover")

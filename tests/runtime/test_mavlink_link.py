@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import socket
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -201,6 +202,28 @@ def test_heartbeat_loss_and_stale_odometry_are_detected_and_recovered(
     assert any("link lost" in m for m in caplog.messages)
     assert any("odometry stale" in m for m in caplog.messages)
     assert any("link recovered" in m for m in caplog.messages)
+
+
+def test_a_process_stall_shows_as_a_setpoint_stream_stall(link: MavlinkLink, caplog: pytest.LogCaptureFixture) -> None:
+    """When this process gets no CPU time (here: one thread keeps the GIL for 0.8 s), the setpoint stream pauses
+    past PX4's 2 Hz rule; the link says so, with the gap, in its status and its log."""
+    link.wait_until(lambda s: s.healthy, 3.0, "connection")
+    link.set_target(1.0, 1.0, 1.7, 0.0)
+    assert wait_for(lambda: link.status().setpoints_sent > 5, 2.0)
+    assert link.status().setpoint_stall is None
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(5.0)
+    try:
+        end = time.monotonic() + 0.8
+        while time.monotonic() < end:  # holds the GIL: no other thread of the process runs
+            pass
+    finally:
+        sys.setswitchinterval(interval)
+    with caplog.at_level(logging.WARNING, logger="edge_explorer.runtime.mavlink_link"):
+        assert wait_for(lambda: link.status().setpoint_stall is not None, 2.0)
+    resumed_s, gap_s = link.status().setpoint_stall
+    assert 0.5 <= gap_s < 2.0 and time.monotonic() - resumed_s < 2.0
+    assert any("setpoint stream stalled" in m for m in caplog.messages)
 
 
 def test_signing_both_sides_and_unsigned_peer_ignored() -> None:

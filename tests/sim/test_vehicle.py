@@ -52,12 +52,27 @@ def test_flight_respects_speed_acceleration_and_yaw_rate_limits() -> None:
 def test_tilt_follows_acceleration_in_flu_convention() -> None:
     model = QuadrotorModel(1.0, 1.0, 1.0, yaw_rad=math.pi / 2)  # facing +y
     model.target = (1.0, 5.0, 1.0, math.pi / 2)  # straight ahead
-    model.step(DT_S)
+    fly(model, 0.3)  # two time constants of the attitude lag
     assert model.pitch_rad > 0.05 and abs(model.roll_rad) < 1e-9  # nose down to speed up forward
     model = QuadrotorModel(1.0, 1.0, 1.0, yaw_rad=0.0)  # facing +x, so +y is to the left
     model.target = (1.0, 5.0, 1.0, 0.0)
-    model.step(DT_S)
+    fly(model, 0.3)
     assert model.roll_rad < -0.05  # left side down (FLU: positive roll lowers the right side)
+
+
+def test_tilt_stays_smooth_while_tracking_a_setpoint_stream() -> None:
+    """A 20 Hz staircase of setpoints along a 0.5 m/s line makes the point mass's acceleration jump between
+    ±a_max; the tilt must not (the 30 Hz ATTITUDE telemetry could not describe it, see QuadrotorModel)."""
+    model = QuadrotorModel(0.0, 0.0, 1.7, yaw_rad=0.0)
+    pitch = []
+    for k in range(300):
+        if k % 5 == 0:
+            model.target = (min(0.5 * k * DT_S, 1.0), 0.0, 1.7, 0.0)
+        model.step(DT_S)
+        pitch.append(model.pitch_rad)
+    steps = np.abs(np.diff(pitch))
+    assert max(pitch) > math.radians(1.0)  # it does tilt to accelerate
+    assert steps.max() < math.radians(0.5)  # by less than half a degree per 10 ms step
 
 
 def test_collision_stops_at_the_last_free_position_and_counts_once_per_contact() -> None:
