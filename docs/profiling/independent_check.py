@@ -24,6 +24,7 @@ from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.profiling.models import feed_for
+from edge_explorer.runtime.daemon import band_z_range_m
 from edge_explorer.sim.camera import CameraPose, DepthCamera
 from edge_explorer.world.catalog import load_building
 
@@ -48,14 +49,14 @@ def main(report_path: str) -> None:
     for i, j in free[rng.choice(len(free), 30, replace=False)]:
         pose = CameraPose(x0 + (j + 0.5) * res, y0 + (i + 0.5) * res, 1.7, float(rng.uniform(-np.pi, np.pi)))
         frames.append((camera.render(pose, rng), pose.position_m, pose.rotation_map_from_optical()))
-    maps = VoxelMaps(VoxelRegion.covering(raster.grid))
+    band = HeightBand()
+    maps = VoxelMaps(VoxelRegion.covering(raster.grid, *band_z_range_m(band)))  # the daemon's region
     cycle, stamps = itertools.cycle(frames), itertools.count(1)
 
     def fuse() -> None:
         depth, position, rotation = next(cycle)
         maps.fuse(depth, camera.config.intrinsics, position, rotation, 0.1 * next(stamps))
 
-    band = HeightBand()
     rows = [("fuse (loop stage)", stages["fuse"]["p50_ms"], per_call_ms(fuse, 30))]
     rows.append(
         (

@@ -34,6 +34,7 @@ from edge_explorer.runtime.daemon import (
     DaemonConfig,
     ModelSetupError,
     Progress,
+    band_z_range_m,
     choose_models,
 )
 from edge_explorer.runtime.depth_sources import DepthFrame, DepthSource
@@ -199,7 +200,7 @@ def measure_loop(options: LoopOptions, on_decision: Callable[[int], None] = lamb
             models.policy,
             models.predictor,
             truth=CoverageTruth(raster),
-            region=VoxelRegion.covering(raster.grid),
+            region=VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)),
         )
         window = _Window(daemon, source, options, on_decision)
         report = daemon.run(window)
