@@ -210,11 +210,11 @@ def _eval_policy(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
+    from edge_explorer.backends.card import sha256_of
     from edge_explorer.bench import explore as bench
     from edge_explorer.cli import write_json
     from edge_explorer.learn.eval_policy import evaluate_buildings, path_ratios
     from edge_explorer.learn.policy_net import read_metadata
-    from edge_explorer.learn.predictor_card import sha256_of
     from edge_explorer.world.catalog import load_buildings
 
     read_metadata(args.model)  # one-line error for a missing file

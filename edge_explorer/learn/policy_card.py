@@ -21,9 +21,10 @@ from pathlib import Path
 
 import torch
 
+from edge_explorer.backends.card import sha256_of
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.policy_net import PolicyActor, load_policy_module, read_metadata
-from edge_explorer.learn.predictor_card import CARD_FORMAT, sha256_of
+from edge_explorer.learn.predictor_card import CARD_FORMAT
 from edge_explorer.mapping.ego import NUM_ACTIONS
 
 WEIGHTS_NAME = "policy.safetensors"

@@ -7,7 +7,6 @@ single-thread fp32 latency measured on this host, and the SHA-256 of the weights
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import platform
@@ -18,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from edge_explorer.backends.card import sha256_of
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.unet import UNet, count_macs_params, load_unet
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
@@ -25,10 +25,6 @@ from edge_explorer.predict import encoding
 
 CARD_FORMAT = "edge-explorer/model-card"
 WEIGHTS_NAME = "predictor.safetensors"
-
-
-def sha256_of(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def torch_latency_ms(model: UNet, repeats: int = 30, threads: int = 1) -> dict:

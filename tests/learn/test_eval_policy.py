@@ -5,12 +5,12 @@ import json
 import pytest
 import torch
 
+from edge_explorer.backends.card import sha256_of
 from edge_explorer.bench import explore as bench
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.eval_policy import fly_policy, path_ratios
 from edge_explorer.learn.policy_card import count_macs, ship_policy
 from edge_explorer.learn.policy_net import PolicyActor, PolicyNetConfig, save_policy
-from edge_explorer.learn.predictor_card import sha256_of
 from edge_explorer.world.catalog import plan_to_raster
 from tests.conftest import two_room_plan
 

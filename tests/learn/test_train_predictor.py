@@ -80,7 +80,8 @@ def test_resume_refuses_another_config(shard_dir, tmp_path):
 
 
 def test_ship_copies_the_best_weights_with_a_card(shard_dir, tmp_path):
-    from edge_explorer.learn.predictor_card import sha256_of, ship_predictor
+    from edge_explorer.backends.card import sha256_of
+    from edge_explorer.learn.predictor_card import ship_predictor
 
     run = tmp_path / "run"
     train(_config(shard_dir), run)
