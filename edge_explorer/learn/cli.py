@@ -8,17 +8,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from edge_explorer.cli import positive_int
+
 DESCRIPTION = "Map predictor: collect training samples, train the U-Net, ship it with its model card."
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
 def _probability(text: str) -> float:
@@ -44,12 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     data.add_argument("--plans", type=Path, default=Path("data/plans"), help="plan dataset (default data/plans)")
     data.add_argument("--out", type=Path, required=True, help="output folder (train/ and val/ shards)")
-    data.add_argument("--train-plans", type=_positive_int, default=4000, help="train plans to explore (4000)")
-    data.add_argument("--val-plans", type=_positive_int, default=300, help="val plans to explore (300)")
-    data.add_argument("--samples-per-plan", type=_positive_int, default=10, help="coverage levels per plan (10)")
-    data.add_argument("--plans-per-shard", type=_positive_int, default=50)
+    data.add_argument("--train-plans", type=positive_int, default=4000, help="train plans to explore (4000)")
+    data.add_argument("--val-plans", type=positive_int, default=300, help="val plans to explore (300)")
+    data.add_argument("--samples-per-plan", type=positive_int, default=10, help="coverage levels per plan (10)")
+    data.add_argument("--plans-per-shard", type=positive_int, default=50)
     data.add_argument("--seed", type=int, default=0)
-    data.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
+    data.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
     data.set_defaults(func=_predictor_data)
 
     pred = tsub.add_parser(
@@ -61,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pred.add_argument("--out", type=Path, required=True, help="run folder: checkpoints, log.csv, best model")
     pred.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint (same config)")
     pred.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    pred.add_argument("--max-steps", type=_positive_int, help="stop after N steps of this call (resume later)")
+    pred.add_argument("--max-steps", type=positive_int, help="stop after N steps of this call (resume later)")
     pred.set_defaults(func=_train_predictor)
 
     pol = tsub.add_parser(
@@ -75,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     pol.add_argument("--resume", action="store_true", help="continue from OUT/state.json (same config)")
     pol.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    pol.add_argument("--max-minutes", type=_positive_int, help="stop PPO after N minutes of this call (resume later)")
+    pol.add_argument("--max-minutes", type=positive_int, help="stop PPO after N minutes of this call (resume later)")
     pol.set_defaults(func=_train_policy)
 
     ship = tsub.add_parser(
@@ -119,7 +111,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     evp.add_argument("--plot", type=Path, help="curves (PNG)")
     evp.add_argument("--explorer", default="random-goal", help="random-goal (default), frontier or fuel")
     evp.add_argument("--seed", type=int, default=0)
-    evp.add_argument("--limit", type=_positive_int, help="only the first N plans")
+    evp.add_argument("--limit", type=positive_int, help="only the first N plans")
     evp.add_argument(
         "--occupied-noise",
         type=_probability,
@@ -138,11 +130,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     evpol.add_argument("--model", type=Path, required=True, help="policy weights (.safetensors)")
     evpol.add_argument("--plans", default="A,B,C,D", help="plan reference (default A,B,C,D)")
-    evpol.add_argument("--runs", type=_positive_int, default=10, help="runs per building (default 10)")
+    evpol.add_argument("--runs", type=positive_int, default=10, help="runs per building (default 10)")
     evpol.add_argument("--seed", type=int, default=0, help="benchmark seed (default 0, as bench explore)")
-    evpol.add_argument("--max-steps", type=_positive_int, default=1500, help="step cap per run (default 1500)")
+    evpol.add_argument("--max-steps", type=positive_int, default=1500, help="step cap per run (default 1500)")
     evpol.add_argument("--predictor", help="fly drl+pred and frontier+pred with this predictor (as bench explore)")
-    evpol.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
+    evpol.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
     evpol.add_argument("--json", type=Path, required=True, help="write the figures here")
     evpol.add_argument("--markdown", type=Path, help="also write the table here")
     evpol.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
