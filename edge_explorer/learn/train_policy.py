@@ -35,7 +35,6 @@ import multiprocessing
 import os
 import shutil
 import time
-import tomllib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ import numpy as np
 import torch
 
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn import toml_config
 from edge_explorer.learn.policy_net import PolicyNetConfig, save_policy, sb3_policy_kwargs
 from edge_explorer.mapping.ego import NUM_ACTIONS
 from edge_explorer.predict.thresholding import ThresholdConfig
@@ -156,38 +156,11 @@ class PolicyTrainConfig:
 
 def config_from_dict(data: dict, source: str = "<config>") -> PolicyTrainConfig:
     """A config from flat TOML keys; unknown keys, wrong types and bad values are errors naming the key."""
-    fields = {f.name for f in dataclasses.fields(PolicyTrainConfig)}
-    unknown = sorted(set(data) - fields)
-    if unknown:
-        raise EdgeExplorerError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(fields)}")
-    defaults = PolicyTrainConfig()
-    values = {}
-    for key, value in data.items():
-        default = getattr(defaults, key)
-        if isinstance(default, tuple):
-            if not (isinstance(value, list) and all(type(v) is int for v in value)):
-                raise EdgeExplorerError(f"{source}: {key} must be a list of integers, got {value!r}")
-            value = tuple(value)
-        elif isinstance(default, float) and type(value) is int:
-            value = float(value)
-        elif type(value) is not type(default):
-            raise EdgeExplorerError(f"{source}: {key} must be {type(default).__name__}, got {value!r}")
-        values[key] = value
-    try:
-        return PolicyTrainConfig(**values)
-    except ValueError as exc:
-        raise EdgeExplorerError(f"{source}: {exc}") from None
+    return toml_config.config_from_dict(PolicyTrainConfig, data, source)
 
 
 def load_config(path: str | Path) -> PolicyTrainConfig:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise EdgeExplorerError(f"{path}: no such config file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise EdgeExplorerError(f"{path}: not valid TOML: {exc}") from None
-    return config_from_dict(data, str(path))
+    return toml_config.load_toml_config(PolicyTrainConfig, path)
 
 
 # ---- plans, predictor, environments ------------------------------------------------------------------------------

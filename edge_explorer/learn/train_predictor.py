@@ -38,7 +38,6 @@ import math
 import os
 import shutil
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +46,7 @@ import torch
 import torch.nn.functional as F
 
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn import toml_config
 from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
 from edge_explorer.mapping.metrics import map_metrics
@@ -110,39 +110,12 @@ class PredictorTrainConfig:
 
 
 def config_from_dict(data: dict, source: str = "<config>") -> PredictorTrainConfig:
-    """A config from flat TOML keys; unknown keys and wrong types are errors that name the key."""
-    fields = {f.name: f for f in dataclasses.fields(PredictorTrainConfig)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise EdgeExplorerError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(fields)}")
-    values = {}
-    defaults = PredictorTrainConfig()
-    for key, value in data.items():
-        default = getattr(defaults, key)
-        if isinstance(default, tuple):
-            if not (isinstance(value, list) and all(isinstance(v, int) for v in value)):
-                raise EdgeExplorerError(f"{source}: {key} must be a list of integers, got {value!r}")
-            value = tuple(value)
-        elif isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        elif type(value) is not type(default):
-            raise EdgeExplorerError(f"{source}: {key} must be {type(default).__name__}, got {value!r}")
-        values[key] = value
-    try:
-        return PredictorTrainConfig(**values)
-    except ValueError as exc:
-        raise EdgeExplorerError(f"{source}: {exc}") from None
+    """A config from flat TOML keys; unknown keys, wrong types and bad values are errors naming the key."""
+    return toml_config.config_from_dict(PredictorTrainConfig, data, source)
 
 
 def load_config(path: str | Path) -> PredictorTrainConfig:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise EdgeExplorerError(f"{path}: no such config file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise EdgeExplorerError(f"{path}: not valid TOML: {exc}") from None
-    return config_from_dict(data, str(path))
+    return toml_config.load_toml_config(PredictorTrainConfig, path)
 
 
 def learning_rate(config: PredictorTrainConfig, step: int) -> float:
