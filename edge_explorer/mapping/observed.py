@@ -97,7 +97,9 @@ class ObservedMaps:
     high: np.ndarray  # int8 codes on high_grid
     low: np.ndarray  # int8 codes on low_grid, always coarsen_codes(high, factor)
     fusion: FusionConfig = FusionConfig()  # the log-odds update (its range settings are not used here)
-    logodds: np.ndarray = field(init=False, repr=False)  # int16 per high cell, UNKNOWN_LOGODDS where unobserved
+    # int16 per high cell, UNKNOWN_LOGODDS where unobserved; made on the first patch (maps built from codes and
+    # only read, as the daemon's per-decision projection, never need it)
+    logodds: np.ndarray | None = field(default=None, init=False, repr=False)
 
     @classmethod
     def empty(cls, high_grid: GridSpec, low_resolution_m: float = LOW_RES_M) -> ObservedMaps:
@@ -114,10 +116,6 @@ class ObservedMaps:
         self._factor = resolution_factor(self.high_grid.resolution_m, self.low_grid.resolution_m)
         if self.high.shape != self.high_grid.shape or self.low.shape != self.low_grid.shape:
             raise ValueError("map arrays must have their grids' shapes")
-        hit, miss, _, _, _ = self.fusion.scaled_logodds()
-        # maps that start from codes carry one observation's worth of evidence per known cell
-        self.logodds = np.where(self.high == OCCUPIED, hit, np.where(self.high == FREE, miss, UNKNOWN_LOGODDS))
-        self.logodds = self.logodds.astype(np.int16)
         self._update = self.fusion.scaled_logodds()
 
     @property
@@ -137,6 +135,10 @@ class ObservedMaps:
         if row0 < 0 or col0 < 0 or row0 + codes.shape[0] > rows or col0 + codes.shape[1] > cols:
             raise ValueError(f"patch at ({row0}, {col0}) of shape {codes.shape} leaves the map {self.high.shape}")
         patch = np.ascontiguousarray(codes, dtype=CELL_DTYPE)
+        if self.logodds is None:  # maps that start from codes carry one observation's worth of evidence per cell
+            hit, miss = self._update[0], self._update[1]
+            evidence = np.where(self.high == OCCUPIED, hit, np.where(self.high == FREE, miss, UNKNOWN_LOGODDS))
+            self.logodds = evidence.astype(np.int16)
         return _apply_patch(self.high, self.logodds, self.low, self._factor, patch, row0, col0, *self._update)
 
     def observed_area_m2(self) -> float:
