@@ -183,19 +183,31 @@ def _step_motion(model: VehicleModel, previous: Action, action: Action) -> tuple
     fwd0, turn0 = _ACTION_INTENT[previous]
     fwd1, turn1 = _ACTION_INTENT[action]
     speed_level = _profile_level(
-        fwd0 * cruise_speed, fwd1 * cruise_speed, fwd1 * model.forward_step_m,
-        model.step_s, model.accel_max_m_s2, 0.0, model.speed_max_m_s,
+        fwd0 * cruise_speed,
+        fwd1 * cruise_speed,
+        fwd1 * model.forward_step_m,
+        model.step_s,
+        model.accel_max_m_s2,
+        0.0,
+        model.speed_max_m_s,
     )
     rate_level = _profile_level(
-        turn0 * cruise_rate, turn1 * cruise_rate, turn1 * model.turn_step_rad,
-        model.step_s, model.yaw_accel_max_rad_s2, -model.yaw_rate_max_rad_s, model.yaw_rate_max_rad_s,
+        turn0 * cruise_rate,
+        turn1 * cruise_rate,
+        turn1 * model.turn_step_rad,
+        model.step_s,
+        model.yaw_accel_max_rad_s2,
+        -model.yaw_rate_max_rad_s,
+        model.yaw_rate_max_rad_s,
     )
     t = np.linspace(0.0, model.step_s, 20001)
     dt = float(t[1] - t[0])
-    speed = _trapezoid_samples(fwd0 * cruise_speed, speed_level, fwd1 * cruise_speed, model.step_s,
-                               model.accel_max_m_s2, t)
-    rate = _trapezoid_samples(turn0 * cruise_rate, rate_level, turn1 * cruise_rate, model.step_s,
-                              model.yaw_accel_max_rad_s2, t)
+    speed = _trapezoid_samples(
+        fwd0 * cruise_speed, speed_level, fwd1 * cruise_speed, model.step_s, model.accel_max_m_s2, t
+    )
+    rate = _trapezoid_samples(
+        turn0 * cruise_rate, rate_level, turn1 * cruise_rate, model.step_s, model.yaw_accel_max_rad_s2, t
+    )
     yaw = _cumtrapz(rate, dt)
     x = _cumtrapz(speed * np.cos(yaw), dt)
     y = _cumtrapz(speed * np.sin(yaw), dt)
@@ -271,8 +283,10 @@ def load_action_table(path: str | Path | None = None) -> ActionTable:
         raise EdgeExplorerError(f"{path}: unsupported action table version {data.get('version')!r}")
     try:
         model = VehicleModel(**data["model"])
-        arrays = [np.asarray(data[k], dtype=np.float64) for k in
-                  ("dx_body_m", "dy_body_m", "dyaw_rad", "pos_std_m", "yaw_std_rad")]
+        arrays = [
+            np.asarray(data[k], dtype=np.float64)
+            for k in ("dx_body_m", "dy_body_m", "dyaw_rad", "pos_std_m", "yaw_std_rad")
+        ]
     except (KeyError, TypeError, ValueError) as exc:
         raise EdgeExplorerError(f"{path}: malformed action table ({exc})") from exc
     for a in arrays:

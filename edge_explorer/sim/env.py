@@ -324,8 +324,7 @@ class ExplorationEnv(gym.Env):
         maps = self._maps
         assert truth is not None and maps is not None
         t0 = time.perf_counter()
-        patch = scan(truth.occupied, truth.raster.grid, self._x, self._y, self._yaw, self.config.sensor,
-                     self.np_random)
+        patch = scan(truth.occupied, truth.raster.grid, self._x, self._y, self._yaw, self.config.sensor, self.np_random)
         t1 = time.perf_counter()
         changed_rows, changed_cols = maps.apply_patch(patch.row0, patch.col0, patch.codes)
         self._high_inflated.update_cells(maps.high, changed_rows, changed_cols)

@@ -212,8 +212,15 @@ def scan(
     else:
         range_err_c = np.empty(0)
     patch, row0, col0 = _cast_scan(
-        occupied, x_c, y_c, float(yaw_rad), config.fov_rad, config.range_m / res, n_rays,
-        neighbour_u, config.occupied_noise_prob, range_err_c,
+        occupied,
+        x_c,
+        y_c,
+        float(yaw_rad),
+        config.fov_rad,
+        config.range_m / res,
+        n_rays,
+        neighbour_u,
+        config.occupied_noise_prob,
+        range_err_c,
     )
     return ScanPatch(row0, col0, patch)
-

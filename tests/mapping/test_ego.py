@@ -100,8 +100,12 @@ def test_rotate_crop_takes_the_nearest_map_cell(codes, yaw, data):
 def test_rotate_crop_sub_window_equals_a_full_warp(codes, yaw, data):
     center = (data.draw(st.integers(-40, codes.shape[0] + 40)), data.draw(st.integers(-40, codes.shape[1] + 40)))
     full = cv2.warpAffine(
-        codes.view(np.uint8), ego._ego_to_map_affine(center, yaw, 237), (237, 237),
-        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0,
+        codes.view(np.uint8),
+        ego._ego_to_map_affine(center, yaw, 237),
+        (237, 237),
+        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
     ).view(CELL_DTYPE)
     np.testing.assert_array_equal(ego.rotate_crop(codes, center, yaw), full)
 

@@ -59,8 +59,9 @@ def _reference(observed, truth, interior, thresholded):
 
 
 @settings(deadline=None)  # the first example may compile numba kernels
-@given(seed=st.integers(0, 2**32 - 1), shape=st.tuples(st.integers(1, 6), st.integers(1, 6)),
-       with_prediction=st.booleans())
+@given(
+    seed=st.integers(0, 2**32 - 1), shape=st.tuples(st.integers(1, 6), st.integers(1, 6)), with_prediction=st.booleans()
+)
 def test_counts_match_the_definitions(seed, shape, with_prediction):
     rng = np.random.default_rng(seed)
     truth = rng.choice([OC, F], size=shape).astype(CELL_DTYPE)
@@ -81,8 +82,10 @@ def test_perfect_map_scores_one(seed, shape):
     rng = np.random.default_rng(seed)
     truth = rng.choice([OC, F], size=shape).astype(CELL_DTYPE)
     interior = np.ones(shape, dtype=bool)
-    for m in (map_metrics(truth.copy(), truth, interior),
-              map_metrics(np.zeros(shape, CELL_DTYPE), truth, interior, truth.copy())):
+    for m in (
+        map_metrics(truth.copy(), truth, interior),
+        map_metrics(np.zeros(shape, CELL_DTYPE), truth, interior, truth.copy()),
+    ):
         assert m.f1 == 1.0 and m.coverage == 1.0 and m.correct_coverage == 1.0
 
 

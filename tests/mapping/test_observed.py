@@ -34,8 +34,9 @@ def test_coarsen_rule_by_hand():
 
 
 @settings(deadline=None)  # the first example may compile numba kernels
-@given(seed=st.integers(0, 2**32 - 1), shape=st.tuples(st.integers(1, 19), st.integers(1, 19)),
-       factor=st.integers(1, 5))
+@given(
+    seed=st.integers(0, 2**32 - 1), shape=st.tuples(st.integers(1, 19), st.integers(1, 19)), factor=st.integers(1, 5)
+)
 def test_coarsen_matches_reference(seed, shape, factor):
     high = np.random.default_rng(seed).integers(-1, 2, size=shape).astype(CELL_DTYPE)
     np.testing.assert_array_equal(coarsen_codes(high, factor), _reference_coarsen(high, factor))

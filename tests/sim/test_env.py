@@ -33,8 +33,16 @@ def test_passes_the_gymnasium_checker(rooms):
         check_env(env)
     obs, info = env.reset(seed=1)
     assert env.observation_space.contains(obs)
-    assert set(info) == {"coverage", "correct_coverage", "f1", "path_length_m", "collided", "penalised", "plan",
-                         "steps"}
+    assert set(info) == {
+        "coverage",
+        "correct_coverage",
+        "f1",
+        "path_length_m",
+        "collided",
+        "penalised",
+        "plan",
+        "steps",
+    }
     image = env.render()
     assert image.ndim == 3 and image.shape[0] == 237 and image.dtype == np.uint8
 
@@ -70,9 +78,14 @@ def test_observation_is_the_shared_encoding_of_the_maps(rooms):
     maps = env.maps
     x, y, yaw = env.pose
     expected = ego.observation_from_maps(
-        maps.high, env.thresholded_low, 0.05, 0.20,
-        tuple(int(v) for v in maps.high_grid.cell_of(x, y)), tuple(int(v) for v in maps.low_grid.cell_of(x, y)),
-        yaw, Action.TURN_LEFT_FORWARD,
+        maps.high,
+        env.thresholded_low,
+        0.05,
+        0.20,
+        tuple(int(v) for v in maps.high_grid.cell_of(x, y)),
+        tuple(int(v) for v in maps.low_grid.cell_of(x, y)),
+        yaw,
+        Action.TURN_LEFT_FORWARD,
     )
     for key in obs:
         np.testing.assert_array_equal(obs[key], expected[key])
@@ -160,7 +173,8 @@ def test_bad_input(rooms):
     with pytest.raises(PlanError, match="0.05"):
         ExplorationEnv([rasterize(two_room_plan(), 0.20)])
     cupboard = FloorPlan(
-        "cupboard", ((0, 0), (0.6, 0), (0.6, 0.6), (0, 0.6)),
+        "cupboard",
+        ((0, 0), (0.6, 0), (0.6, 0.6), (0, 0.6)),
         (Rect(0, 0, 0.6, 0.1), Rect(0, 0.5, 0.6, 0.6), Rect(0, 0, 0.1, 0.6), Rect(0.5, 0, 0.6, 0.6)),
     )
     with pytest.raises(PlanError, match="nowhere to start"):

@@ -68,8 +68,10 @@ def test_neighbour_noise():
         assert (block == OCCUPIED).all()
     false_always = ((always.codes == OCCUPIED) & ~raster.occupied[clean.rows, clean.cols]).sum()
     false_default = [
-        ((scan(raster.occupied, raster.grid, *pose, SensorConfig(), np.random.default_rng(s)).codes == OCCUPIED)
-         & ~raster.occupied[clean.rows, clean.cols]).sum()
+        (
+            (scan(raster.occupied, raster.grid, *pose, SensorConfig(), np.random.default_rng(s)).codes == OCCUPIED)
+            & ~raster.occupied[clean.rows, clean.cols]
+        ).sum()
         for s in range(20)
     ]
     assert 0.03 < np.mean(false_default) / false_always < 0.5

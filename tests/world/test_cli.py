@@ -17,8 +17,12 @@ def test_help_everywhere(capsys):
 
 @pytest.mark.parametrize(
     "argv",
-    [["plans", "generate", "--count", "-3", "--out", "x"], ["plans", "generate", "--count", "3"], ["nope"],
-     ["plans", "generate", "--count", "3", "--out", "x", "--split", "1,2"]],
+    [
+        ["plans", "generate", "--count", "-3", "--out", "x"],
+        ["plans", "generate", "--count", "3"],
+        ["nope"],
+        ["plans", "generate", "--count", "3", "--out", "x", "--split", "1,2"],
+    ],
 )
 def test_bad_arguments_exit_2_with_one_line(argv, capsys):
     with pytest.raises(SystemExit) as exit_:

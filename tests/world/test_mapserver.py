@@ -14,8 +14,14 @@ REALPLANS = Path(__file__).resolve().parents[3] / "shared" / "data" / "realplans
 
 def _write_map(tmp_path: Path, pixels: np.ndarray, **overrides) -> Path:
     cv2.imwrite(str(tmp_path / "m.pgm"), pixels)
-    fields = {"image": "m.pgm", "resolution": 0.05, "origin": "[1.0, -2.0, 0.0]", "negate": 0,
-              "occupied_thresh": 0.65, "free_thresh": 0.196}
+    fields = {
+        "image": "m.pgm",
+        "resolution": 0.05,
+        "origin": "[1.0, -2.0, 0.0]",
+        "negate": 0,
+        "occupied_thresh": 0.65,
+        "free_thresh": 0.196,
+    }
     fields.update(overrides)
     path = tmp_path / "m.yaml"
     path.write_text("".join(f"{k}: {v}\n" for k, v in fields.items() if v is not None))
