@@ -107,7 +107,13 @@ def test_rotate_crop_sub_window_equals_a_full_warp(codes, yaw, data):
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=0,
     ).view(CELL_DTYPE)
-    np.testing.assert_array_equal(ego.rotate_crop(codes, center, yaw), full)
+    # equal away from rounding ties: opencv's fixed-point coordinates of a sub-window and of the full window can
+    # round a cell whose source lies on a map-cell boundary to either side
+    rows, cols = np.mgrid[0:237, 0:237]
+    src = ego.ego_to_map_cells(np.stack([rows, cols], axis=-1), center, yaw, 237)
+    frac = src + 0.5 - np.floor(src + 0.5)
+    clear = ((frac > 1e-3) & (frac < 1 - 1e-3)).all(axis=-1)
+    np.testing.assert_array_equal(ego.rotate_crop(codes, center, yaw)[clear], full[clear])
 
 
 def test_rotate_crop_rejects_non_codes():
