@@ -8,7 +8,8 @@ so path lengths compare with ``bench explore``.
 
 Per building and over all: flights that reached the coverage goal, collisions, the path length when coverage first
 reached the goal (min / max / avg / std, as in Table I) and its ratio to the exploration benchmark's average for the
-same building and planner (``--compare``, default ``docs/bench/bundled.json``), exploration time, decision latency
+same building and method — the planner the daemon flew, ``+pred`` when it ran the predictor (:func:`bench_method`;
+``--compare``, default ``docs/bench/bundled.json``), exploration time, decision latency
 p50 / p95 (the worst flight), the daemon's CPU % of one core at the profile's depth rate (mean and worst) and peak
 RSS (worst). Each flight's own outputs (summary, picture, telemetry log, daemon log, its terminal output in
 ``stdout.log``, its command line in ``command.json``) stay in ``--out``/``<plan>-run<k>/``.
@@ -146,7 +147,7 @@ def _write_outputs(
     options: RunOptions,
     plans: str,
     runs: int,
-    reference: dict[str, float] | None,
+    reference: Reference | None,
     compare_path: Path | None,
     flights: list[dict[str, Any]],
 ) -> None:
@@ -172,9 +173,18 @@ def _write_outputs(
         plot_acceptance(plot_path, flights, table)
 
 
-def load_reference(path: Path | None) -> dict[str, float] | None:
-    """The exploration benchmark's average path at the goal per building for the planner the daemon flies with no
-    policy (``frontier``), from a ``bench explore`` JSON; None when there is none (``path`` None and no default)."""
+Reference = dict[str, dict[str, float]]
+"""The exploration benchmark's average path at the goal: ``{method: {building: metres}}``."""
+
+
+def bench_method(flight: dict[str, Any]) -> str:
+    """The ``bench explore`` method a flight compares with: its planner, plus ``+pred`` when a predictor ran."""
+    return flight["planner"] + ("+pred" if flight["backends"]["predictor"] else "")
+
+
+def load_reference(path: Path | None) -> Reference | None:
+    """The exploration benchmark's average path at the goal per method and building, from a ``bench explore`` JSON;
+    None when there is none (``path`` None and no default)."""
     from edge_explorer.errors import EdgeExplorerError
 
     if path is None:
@@ -183,15 +193,16 @@ def load_reference(path: Path | None) -> dict[str, float] | None:
         path = DEFAULT_COMPARE
     try:
         plans = json.loads(path.read_text())["summary"]["plans"]
-        return {
-            plan: methods["frontier"]["path_at_coverage_m"]["avg"]
-            for plan, methods in plans.items()
-            if "frontier" in methods and methods["frontier"]["path_at_coverage_m"] is not None
-        }
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        reference: Reference = {}
+        for plan, methods in plans.items():
+            for method, result in methods.items():
+                if result["path_at_coverage_m"] is not None:
+                    reference.setdefault(method, {})[plan] = result["path_at_coverage_m"]["avg"]
+        return reference
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise EdgeExplorerError(
-            f"--compare {path}: not a `bench explore` JSON with frontier results ({exc}); give the file that "
-            "`edge-explorer bench explore --methods frontier --json PATH` wrote"
+            f"--compare {path}: not a `bench explore` JSON ({exc}); give the file that "
+            "`edge-explorer bench explore --methods frontier,frontier+pred --json PATH` wrote"
         ) from None
 
 
@@ -221,7 +232,12 @@ def _latency(f: dict[str, Any], key: str, figure: str = "decision_latency_ms") -
     return float("nan") if f.get(figure) is None else f[figure][key]
 
 
-def _group(flights: list[dict[str, Any]], reference_m: float | None) -> dict[str, Any]:
+def _group(flights: list[dict[str, Any]], reference: Reference | None) -> dict[str, Any]:
+    """One row of the table; ``reference`` None for the ``all`` row (buildings differ)."""
+    methods = sorted({bench_method(f) for f in flights})
+    reference_m = None
+    if reference is not None and len(methods) == 1:
+        reference_m = reference.get(methods[0], {}).get(flights[0]["plan"])
     path = _stats([f["path_at_goal_m"] for f in flights if f["path_at_goal_m"] is not None])
     ratio = None if path is None or reference_m is None else path["avg"] / reference_m
     return {
@@ -229,6 +245,7 @@ def _group(flights: list[dict[str, Any]], reference_m: float | None) -> dict[str
         "reached_goal": sum(f["path_at_goal_m"] is not None for f in flights),
         "collisions": sum(f["collisions"] or 0 for f in flights),
         "path_at_goal_m": path,
+        "bench_method": "/".join(methods),
         "bench_path_at_goal_m": reference_m,
         "path_ratio_to_bench": ratio,
         "path_within_tolerance": None if ratio is None else abs(ratio - 1.0) <= PATH_TOLERANCE,
@@ -244,11 +261,11 @@ def _group(flights: list[dict[str, Any]], reference_m: float | None) -> dict[str
     }
 
 
-def summarize(flights: list[dict[str, Any]], reference: dict[str, float] | None = None) -> dict[str, Any]:
-    """Per building (in flight order) and ``all``; ``reference``: the benchmark's average path per building."""
-    reference = reference or {}
+def summarize(flights: list[dict[str, Any]], reference: Reference | None = None) -> dict[str, Any]:
+    """Per building (in flight order) and ``all``; ``reference``: the benchmark's average paths
+    (:func:`load_reference`), compared per building with the method its flights flew."""
     plans = list(dict.fromkeys(f["plan"] for f in flights))
-    out = {plan: _group([f for f in flights if f["plan"] == plan], reference.get(plan)) for plan in plans}
+    out = {plan: _group([f for f in flights if f["plan"] == plan], reference or {}) for plan in plans}
     if flights:
         out["all"] = _group(flights, None)
     return out
@@ -256,7 +273,7 @@ def summarize(flights: list[dict[str, Any]], reference: dict[str, float] | None 
 
 def markdown_table(table: dict[str, Any]) -> str:
     lines = [
-        "| building | reached 95 % | collisions | path at 95 % (m) min / max / avg / std | bench frontier (m) | "
+        "| building | reached 95 % | collisions | path at 95 % (m) min / max / avg / std | bench method: avg (m) | "
         "ratio | exploration (s) avg | decision p50 / p95 (ms) worst | decision CPU p95 (ms) worst | "
         "CPU % of one core avg / worst | peak RSS (MB) worst | load avg |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
@@ -264,7 +281,7 @@ def markdown_table(table: dict[str, Any]) -> str:
     for name, g in table.items():
         p = g["path_at_goal_m"]
         path = "–" if p is None else f"{p['min']:.1f} / {p['max']:.1f} / {p['avg']:.1f} / {p['std']:.1f}"
-        bench = "–" if g["bench_path_at_goal_m"] is None else f"{g['bench_path_at_goal_m']:.1f}"
+        bench = "–" if g["bench_path_at_goal_m"] is None else f"{g['bench_method']}: {g['bench_path_at_goal_m']:.1f}"
         ratio = "–" if g["path_ratio_to_bench"] is None else f"{g['path_ratio_to_bench']:.2f}"
         lines.append(
             f"| {name} | {g['reached_goal']}/{g['flights']} | {g['collisions']} | {path} | {bench} | {ratio} | "
@@ -282,7 +299,8 @@ def markdown_report(doc: dict[str, Any]) -> str:
         "# `edge-explorer run` acceptance bench",
         "",
         f"Command: `{doc['command'] or 'edge-explorer run --plans ' + doc['plans']}`; exploration time limit "
-        f"{doc['time_limit_s']:.0f} s; path compared with {doc['compared_with'] or 'no benchmark'} (frontier).",
+        f"{doc['time_limit_s']:.0f} s; path compared with {doc['compared_with'] or 'no benchmark'} (the method each "
+        "building's flights flew).",
         "",
         markdown_table(doc["summary"]),
         "| flight | ending | coverage | path at 95 % (m) | collisions | decision p50 / p95 (ms) | "
@@ -325,7 +343,7 @@ def plot_acceptance(path: Path, flights: list[dict[str, Any]], table: dict[str, 
         axes[0].plot(missed, [0.0] * len(missed), "x", color="tab:red", label="goal not reached" if i == 0 else None)
         bench = table[plan]["bench_path_at_goal_m"]
         if bench is not None:
-            axes[0].hlines(bench, i - 0.3, i + 0.3, color="k", label="bench frontier avg" if i == 0 else None)
+            axes[0].hlines(bench, i - 0.3, i + 0.3, color="k", label="bench avg, same method" if i == 0 else None)
             axes[0].fill_between(
                 [i - 0.3, i + 0.3], bench * (1 - PATH_TOLERANCE), bench * (1 + PATH_TOLERANCE), color="k", alpha=0.1
             )

@@ -31,6 +31,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from edge_explorer.backends.chain import load_model
 from edge_explorer.cli import main
+from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import align_to_grid
 from edge_explorer.mapping.voxels import VoxelRegion
@@ -744,3 +745,47 @@ def test_the_acceptance_bench_flies_each_building_in_its_own_process(tmp_path):
     assert tlog.stat().st_mtime_ns == flown_at
     assert "| two-rooms | 0/1 | 0 |" in (out / "bench.md").read_text()
     assert (out / "bench.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_acceptance_bench_compares_each_building_with_the_benchmark_method_it_flew(tmp_path):
+    from edge_explorer.runtime.acceptance import load_reference, summarize
+
+    bench = {
+        "summary": {
+            "plans": {
+                "A": {
+                    "frontier": {"path_at_coverage_m": {"avg": 70.0}},
+                    "frontier+pred": {"path_at_coverage_m": {"avg": 60.0}},
+                    "drl+pred": {"path_at_coverage_m": None},  # never reached the goal: no reference
+                }
+            }
+        }
+    }
+    (tmp_path / "bench.json").write_text(json.dumps(bench))
+    reference = load_reference(tmp_path / "bench.json")
+    assert reference == {"frontier": {"A": 70.0}, "frontier+pred": {"A": 60.0}}
+
+    def flight(planner, predictor, path_m):
+        return {
+            "plan": "A",
+            "planner": planner,
+            "backends": {"predictor": predictor},
+            "path_at_goal_m": path_m,
+            "collisions": 0,
+            "coverage": 0.96,
+            "exploration_s": 300.0,
+            "decision_latency_ms": None,
+            "decision_cpu_ms": None,
+            "peak_rss_mb": 240.0,
+            "cpu": {"daemon_percent_of_one_core": 12.0, "load_average_1min": 0.5},
+        }
+
+    with_predictor = summarize([flight("frontier", "litert-cpu", 66.0)], reference)["A"]
+    assert with_predictor["bench_method"] == "frontier+pred" and with_predictor["path_ratio_to_bench"] == 1.1
+    assert with_predictor["path_within_tolerance"]
+    observed_only = summarize([flight("frontier", None, 66.0)], reference)["A"]
+    assert observed_only["bench_method"] == "frontier" and observed_only["bench_path_at_goal_m"] == 70.0
+    assert summarize([flight("drl", "litert-cpu", 50.0)], reference)["A"]["bench_path_at_goal_m"] is None
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(EdgeExplorerError, match="not a `bench explore` JSON"):
+        load_reference(tmp_path / "bad.json")
