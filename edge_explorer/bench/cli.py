@@ -72,7 +72,9 @@ def _explore(args: argparse.Namespace) -> int:
 
     records = bench.run_benchmark(rasters, specs, workers, args.out_dir, progress)
     summary = bench.summarize(records, methods)
+    paired = bench.paired_differences(records, methods)
     table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)
+    table += "\n" + bench.markdown_paired(paired) if len(methods) > 1 else ""
     command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
     print(table, end="")
     failed = bench.failures(records)
@@ -99,6 +101,7 @@ def _explore(args: argparse.Namespace) -> int:
                 "policy": args.policy,
             },
             "summary": summary,
+            "paired": paired,
             "failures": failed,
             "runs": [{k: v for k, v in r.items() if k != "curves"} for r in records],
             "curves": panels,

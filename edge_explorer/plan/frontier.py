@@ -18,9 +18,14 @@ Nearest Frontier (:class:`NearestFrontier`): go to the traversable cell within `
 that is nearest along the graph, then face the frontier. The shared :class:`GoalPlanner` loop flies the path with
 :func:`~edge_explorer.plan.follow.choose_action` and replans when the target is no longer a frontier (seen), when
 the path became untraversable; a goal *fails* when the vehicle reached and faced its target and it is still a
-frontier, or when the vehicle stalls (no progress, or hovering because no safe motion gets it closer): such a target
-cannot be seen from where the graph leads and is dropped. With no reachable frontier left the vehicle first turns a
-full circle in place (it may have seen too little, e.g. at the start), then reports that it is done.
+frontier, or when the vehicle stalls (no 5 cm of progress along the path — not towards its end: a path around a
+wall first leads away from it — for ``stall_steps``, or hovering because no safe motion gets it closer). A target
+that fails on arrival cannot be seen from where the graph leads and is dropped. A vehicle that stalls still far
+along the path has not shown that: the follower could not thread a passage (a door between noise-thickened jambs)
+from the way it came. It backs off to the most open spot 0.8–2 m away and tries again, up to twice until some
+target is seen, before the target is dropped.
+With no reachable frontier left the vehicle first turns a full circle in place (it may have seen too little, e.g. at
+the start), then reports that it is done.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose, choose_action
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose, choose_action, remaining_path_m
 from edge_explorer.sim.dynamics import Action, ActionTable, load_action_table
 from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec, resolution_factor
 
@@ -44,6 +49,10 @@ _FULL_TURN_STEPS = 12  # 12 × 30°
 _ESCAPE_RADIUS_M = 1.0  # around a vehicle that stands too close to an obstacle, cells as close count as traversable
 _MAX_HOVERS = 3  # hovers in a row after which the follower counts as stuck
 _NEARBY_M = 4.0  # graph cost within which the nearest-frontier search looks first
+_FAR_M = 1.0  # a goal that stalls with more path than this left to fly was not failed by its target …
+_MAX_RETREATS = 2  # … so the vehicle backs off (this many times until a target is seen) and tries again …
+_RETREAT_MIN_M, _RETREAT_MAX_M = 0.8, 2.0  # … to the most open spot this far away along the graph
+_DETOUR_M = 0.5  # a replanned path this much longer than the old one's remainder restarts the stall detection
 
 
 def frontier_mask(codes: np.ndarray) -> np.ndarray:
@@ -188,7 +197,7 @@ class PlannerConfig:
     follow: FollowConfig = FollowConfig()
     graph: GraphConfig = GraphConfig()
     goal_radius_m: float = 0.5  # a goal cell lies this close to its frontier
-    stall_steps: int = 12  # a goal fails after this many steps without getting 5 cm closer
+    stall_steps: int = 12  # a goal fails after this many steps without getting 5 cm closer along its path
 
     def __post_init__(self) -> None:
         if self.goal_radius_m <= 0 or self.stall_steps < 1:
@@ -208,14 +217,19 @@ class Goal:
     yaw_rad: float
     target_cells: np.ndarray
     done_fraction: float = 1.0
-    best_remaining_m: float = math.inf  # progress bookkeeping: closest approach to the path's end …
+    best_remaining_m: float = math.inf  # progress bookkeeping: least path left to fly (remaining_path_m) …
     steps_since_progress: int = 0  # … steps since it last improved by 5 cm …
     hovers: int = 0  # … and hovers in a row (the follower's answer when it cannot get closer)
+    retreat: bool = False  # a back-off into open space after getting stuck on the way to ``target_cells``
 
     def inherit_progress(self, previous: Goal | None) -> None:
-        """Keep the progress bookkeeping of ``previous`` if it led to the same place (a replan that changed
-        nothing must not reset the stall detection)."""
-        if previous is not None and np.hypot(*(previous.path_xy_m[-1] - self.path_xy_m[-1])) < 0.15:
+        """Keep the progress bookkeeping of ``previous`` if it led to the same place by about the same way (a
+        replan that changed nothing must not reset the stall detection; a detour the map now demands must)."""
+        if (
+            previous is not None
+            and np.hypot(*(previous.path_xy_m[-1] - self.path_xy_m[-1])) < 0.15
+            and remaining_path_m(self.path_xy_m, self.path_xy_m[0]) <= previous.best_remaining_m + _DETOUR_M
+        ):
             self.best_remaining_m = previous.best_remaining_m
             self.steps_since_progress = previous.steps_since_progress
             self.hovers = previous.hovers
@@ -252,12 +266,14 @@ class GoalPlanner:
         self._goal: Goal | None = None
         self._dropped: np.ndarray | None = None  # bool on the 0.20 m grid
         self._spin_steps_left: int | None = None  # None: not spinning
+        self._retreats_left = _MAX_RETREATS
 
     def reset(self) -> None:
         """Forget the goal and the dropped targets (a new flight)."""
         self._goal = None
         self._dropped = None
         self._spin_steps_left = None
+        self._retreats_left = _MAX_RETREATS
         self.replans = 0
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
@@ -276,7 +292,7 @@ class GoalPlanner:
             status = "replan" if goal is None else self.status(goal, view, pose)
             if status == "failed":
                 assert goal is not None
-                self._goal = self.on_failure(goal, view, pose)
+                self._goal = self._handle_failure(goal, view, pose, arrived=False)
                 status = "replan" if self._goal is None else "ok"
             if status == "replan":
                 self.replans += 1
@@ -293,22 +309,37 @@ class GoalPlanner:
             if action is not None and goal.hovers <= _MAX_HOVERS:
                 self._spin_steps_left = None
                 return action
-            self._goal = self.on_failure(goal, view, pose)  # arrived or stuck, and the target is still a frontier
+            # arrived or stuck, and the target is still a frontier
+            self._goal = self._handle_failure(goal, view, pose, arrived=action is None)
         return self._spin(view, pose, previous_action)
 
     def status(self, goal: Goal, view: View, pose: Pose) -> str:
         """``"ok"`` to keep flying ``goal``, ``"replan"`` (target seen, path blocked) or ``"failed"`` (stalled)."""
         if view.frontier.flat[goal.target_cells].mean() <= 1.0 - goal.done_fraction:
+            self._retreats_left = _MAX_RETREATS  # a target seen: the follower may back off again
             return "replan"
         if not view.traversable.contains_path(goal.path_xy_m):
             return "replan"
-        end = goal.path_xy_m[-1]
-        remaining = math.hypot(end[0] - pose[0], end[1] - pose[1])
+        remaining = remaining_path_m(goal.path_xy_m, pose[:2])
         if remaining < goal.best_remaining_m - 0.05:
             goal.best_remaining_m, goal.steps_since_progress = remaining, 0
         else:
             goal.steps_since_progress += 1
         return "failed" if goal.steps_since_progress > self.config.stall_steps else "ok"
+
+    def _handle_failure(self, goal: Goal, view: View, pose: Pose, arrived: bool) -> Goal | None:
+        """The next goal after ``goal`` ended without its target seen. A back-off goal just ends (replan from
+        where it got to). A vehicle that got stuck still far along the path from its goal — the follower failed
+        to thread a passage from the way it came, which says nothing about the target — backs off into open space
+        and tries again (:data:`_MAX_RETREATS` times until some target is seen); otherwise :meth:`on_failure`."""
+        if goal.retreat:
+            return None
+        if not arrived and self._retreats_left > 0 and remaining_path_m(goal.path_xy_m, pose[:2]) > _FAR_M:
+            retreat = retreat_goal(view, pose, goal)
+            if retreat is not None:
+                self._retreats_left -= 1
+                return retreat
+        return self.on_failure(goal, view, pose)
 
     def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
         """What to do when ``goal`` failed: drop its target (it cannot be seen from where the graph leads) and
@@ -348,6 +379,25 @@ def goal_candidates(view: View, frontier: np.ndarray, goal_radius_m: float) -> n
     near = cv2.dilate(fine.astype(np.uint8), disk, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
     nodes = graph.node_of[near]
     return nodes[nodes >= 0]
+
+
+def retreat_goal(view: View, pose: Pose, stuck: Goal) -> Goal | None:
+    """Back-off goal for a vehicle stuck on the way to ``stuck``: the graph node with the most clearance among
+    those :data:`_RETREAT_MIN_M` to :data:`_RETREAT_MAX_M` away along the graph (the nearest among equals), facing
+    the way the path there ends; ``None`` if there is none."""
+    graph = view.graph
+    start = graph.node_at(*pose[:2])
+    if start < 0:
+        return None
+    cost, predecessors = graph.search([start], _RETREAT_MAX_M)
+    nodes = np.flatnonzero(np.isfinite(cost[0]) & (cost[0] >= _RETREAT_MIN_M))
+    if len(nodes) == 0:
+        return None
+    clearance = view.traversable.clearance_m.flat[graph.cells[nodes]]
+    best = int(nodes[np.lexsort((cost[0, nodes], -clearance))[0]])
+    path = graph.path_xy_m(predecessors[0], best)
+    (x0, y0), (x1, y1) = path[-2], path[-1]
+    return Goal(path, math.atan2(y1 - y0, x1 - x0), stuck.target_cells, stuck.done_fraction, retreat=True)
 
 
 def nearest_cell(grid: GridSpec, mask: np.ndarray, xy_m: np.ndarray) -> int:

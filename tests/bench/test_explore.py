@@ -69,6 +69,24 @@ def test_summary_is_table_one():
     assert [f["run"] for f in explore.failures(records)] == [1, 2]
 
 
+def test_paired_difference_compares_methods_building_by_building():
+    records = [
+        fake_record("A", "frontier", 0, 10.0),
+        fake_record("A", "frontier", 1, 14.0),  # A: frontier 12.0 on average
+        fake_record("A", "fuel", 0, 11.0),
+        fake_record("B", "frontier", 0, 50.0),
+        fake_record("B", "fuel", 0, 53.0),
+        fake_record("C", "frontier", 0, 30.0),
+        fake_record("C", "fuel", 0, None),  # never reached 95 %: C is not compared
+    ]
+    (paired,) = explore.paired_differences(records, ["frontier", "fuel"])
+    assert (paired["a"], paired["b"], paired["buildings"], paired["b_shorter"]) == ("frontier", "fuel", 2, 1)
+    assert paired["mean_m"] == pytest.approx(1.0)  # (−1 + 3) / 2
+    assert paired["stderr_m"] == pytest.approx(2.0)  # std (ddof 1) of (−1, 3) is 2√2, over √2
+    assert paired["median_m"] == pytest.approx(1.0)
+    assert "| fuel − frontier | +1.0 ± 2.0 | +1.0 | 2 | 1 |" in explore.markdown_paired([paired])
+
+
 def test_mean_curves_hold_the_final_value():
     short = fake_record("A", "fuel", 0, 1.0)
     long = fake_record("A", "fuel", 1, 1.0)
@@ -144,7 +162,9 @@ def test_cli_writes_table_json_and_figure(tmp_path, capsys):
     assert set(report["summary"]["plans"]["two-rooms"]) == {"frontier", "fuel"}
     assert set(report["curves"]["two-rooms"]["fuel"]) == {"path_m", "coverage", "correct_coverage"}
     assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
-    assert "| two-rooms | fuel |" in capsys.readouterr().out
+    assert [(p["a"], p["b"]) for p in report["paired"]] == [("frontier", "fuel")]
+    out = capsys.readouterr().out
+    assert "| two-rooms | fuel |" in out and "| fuel − frontier |" in out
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from edge_explorer.mapping import ego
-from edge_explorer.plan.follow import FollowConfig, FreeSpace, arrived, choose_action
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, arrived, choose_action, remaining_path_m
 from edge_explorer.sim import dynamics
 from edge_explorer.sim.dynamics import Action, load_action_table
-from edge_explorer.world.grid import NON_FLIGHT, OCCUPIED
+from edge_explorer.world.grid import FREE, NON_FLIGHT, OCCUPIED, GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 
@@ -102,3 +102,73 @@ def test_arrival_needs_the_heading():
     assert not arrived((0.5, 0.0, 0.0), path, None, config)
     with pytest.raises(ValueError):
         FollowConfig(lookahead_m=0.0)
+
+
+def test_remaining_path_is_measured_along_the_path():
+    path = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])  # a U whose end is 1 m from its start
+    assert remaining_path_m(path, (0.0, 0.0)) == pytest.approx(5.0)
+    # Halfway up the bend: farther from the end in a straight line than at the start, but nearer along the path.
+    assert remaining_path_m(path, (2.0, 0.5)) == pytest.approx(2.5)
+    assert remaining_path_m(path, (1.0, -0.2)) == pytest.approx(0.2 + 4.0)  # off the path: the gap counts
+    assert remaining_path_m(path[-1:], (0.0, 0.0)) == pytest.approx(1.0)
+
+
+def open_space(size_m: float = 8.0) -> FreeSpace:
+    """All-FREE 0.05 m grid centred on the origin, no obstacles."""
+    cells = int(size_m / 0.05)
+    grid = GridSpec((-size_m / 2, -size_m / 2), 0.05, (cells, cells))
+    return FreeSpace.from_codes(np.full((cells, cells), FREE, dtype=np.int8), grid)
+
+
+def test_final_heading_only_counts_at_the_path_end(table):
+    """A final heading opposite to the path must not make the follower hover half-way: the pursuit target part-way
+    along the path says nothing about the heading to take at its end."""
+    path = np.array([[0.0, 0.0], [3.0, 0.0]])
+    poses, done = fly(table, open_space(), (0.0, 0.0, 0.0), path, final_yaw=math.pi)
+    assert done
+    steps_to_end = next(k for k, p in enumerate(poses) if math.hypot(p[0] - 3.0, p[1]) <= 0.5)
+    assert steps_to_end <= 8  # 3 m at about 0.5 m per step, without stops
+
+
+def within_noise(table, blocked, grid, pose, previous, action):
+    """The mean step of ``action`` and its drift, shifted the follower's ``noise_sigmas`` standard deviations in 8
+    directions, stay out of ``blocked``."""
+    sigmas = FollowConfig().noise_sigmas
+    end = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
+    drift = dynamics.body_to_map(*end, *table.mean_step(action, Action.HOVER))
+    std_m = math.hypot(table.pos_std_m[previous, action], table.pos_std_m[action, Action.HOVER])
+    for angle in np.linspace(0.0, 2 * math.pi, 8, endpoint=False):
+        dx, dy = sigmas * std_m * math.cos(angle), sigmas * std_m * math.sin(angle)
+        shifted, shifted_drift = (end[0] + dx, end[1] + dy), (drift[0] + dx, drift[1] + dy)
+        if dynamics.swept_path_blocked(blocked, grid, pose[:2], shifted) or dynamics.swept_path_blocked(
+            blocked, grid, shifted, shifted_drift
+        ):
+            return False
+    return True
+
+
+def test_prefers_motions_that_motion_noise_cannot_push_into_the_band(rooms, table):
+    """Near walls, whenever some first step keeps the NON_FLIGHT band out of reach of ``noise_sigmas`` standard
+    deviations of its motion noise, the follower takes such a step; without the preference (``noise_sigmas=0``) it
+    does not always."""
+    raster, free = rooms
+    rng = np.random.default_rng(7)
+    blocked = ego.inflate_codes(raster.truth_codes(), 0.05, 0.25) != -1
+    near_wall = np.argwhere(free.known_free & (free.clearance_m >= 0.30) & (free.clearance_m <= 0.45))
+    violations = {True: 0, False: 0}
+    checked = 0
+    while checked < 60:
+        row, col = near_wall[rng.integers(len(near_wall))]
+        x, y = (float(v) for v in raster.grid.center_of(row, col))
+        pose, previous = (x, y, float(rng.uniform(-math.pi, math.pi))), int(rng.integers(6))
+        if not any(within_noise(table, blocked, raster.grid, pose, previous, a) for a in range(6)):
+            continue  # nothing robust to prefer
+        bearing, distance = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 3.0)
+        target = np.array([[x + distance * math.cos(bearing), y + distance * math.sin(bearing)]])
+        checked += 1
+        for robust in (True, False):
+            config = FollowConfig() if robust else FollowConfig(noise_sigmas=0.0)
+            action = choose_action(table, pose, previous, target, free, config)
+            violations[robust] += not within_noise(table, blocked, raster.grid, pose, previous, action)
+    assert violations[True] == 0
+    assert violations[False] > 0

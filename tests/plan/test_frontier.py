@@ -1,14 +1,16 @@
 """Frontiers, the planning graph and Nearest Frontier (edge_explorer.plan.frontier)."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from edge_explorer.plan.follow import FollowConfig, FreeSpace
-from edge_explorer.plan.frontier import GraphConfig, NearestFrontier, PlanningGraph, frontier_mask
+from edge_explorer.mapping.observed import ObservedMaps, coarsen_codes
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, remaining_path_m
+from edge_explorer.plan.frontier import Goal, GraphConfig, NearestFrontier, PlanningGraph, frontier_mask
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN
+from edge_explorer.world.grid import FREE, LOW_RES_M, OCCUPIED, UNKNOWN, resolution_factor
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 
@@ -67,3 +69,58 @@ def test_nearest_frontier_explores_the_two_rooms(rooms):
         previous = action
     assert info["coverage"] >= 0.95
     assert env.pose[0] > 2.0  # it went through the door to see the east room
+
+
+def west_room_seen(raster) -> ObservedMaps:
+    """The two-room plan observed up to x = 2.5 m: the door and a strip of the east room known, the rest not."""
+    codes = raster.truth_codes()
+    codes[:, raster.grid.cell_of(2.5, 0.0)[1] :] = UNKNOWN
+    factor = resolution_factor(raster.grid.resolution_m, LOW_RES_M)
+    return ObservedMaps(raster.grid, raster.grid.coarsened(factor), codes, coarsen_codes(codes, factor))
+
+
+class _PathView:
+    """Stand-in for a View: the target is still a frontier and every path is traversable."""
+
+    def __init__(self, shape):
+        self.frontier = np.ones(shape, dtype=bool)
+        self.traversable = SimpleNamespace(contains_path=lambda path: True)
+
+
+def test_stall_detection_measures_progress_along_the_path():
+    """A vehicle flying a U-shaped path gets farther from the path's end in a straight line for a while; that is
+    progress, not a stall. A vehicle that does not move stalls after ``stall_steps``."""
+    planner = NearestFrontier()
+    path = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 1.0], [0.0, 1.0]])
+    view = _PathView((4, 4))
+    goal = Goal(path, 0.0, np.array([0]))
+    for k in range(1, planner.config.stall_steps + 6):  # 0.3 m a step along the first leg: farther from the end
+        assert planner.status(goal, view, (0.3 * k, 0.0, 0.0)) == "ok"
+    stuck = Goal(path, 0.0, np.array([0]))
+    statuses = [planner.status(stuck, view, (0.5, 0.0, 0.0)) for _ in range(planner.config.stall_steps + 2)]
+    assert statuses[-1] == "failed" and "failed" not in statuses[: planner.config.stall_steps]
+
+
+def test_stuck_far_from_the_goal_backs_off_before_giving_up_the_target(rooms):
+    planner = NearestFrontier()
+    pose = (0.6, 0.6, 0.0)
+    view = planner.view(west_room_seen(rooms), pose)
+    goal = planner.select_goal(view, pose)
+    assert goal is not None and remaining_path_m(goal.path_xy_m, pose[:2]) > 1.0  # through the door, east
+    for _ in range(2):
+        retreat = planner._handle_failure(goal, view, pose, arrived=False)
+        assert retreat is not None and retreat.retreat
+        assert view.free.clearance_at(*retreat.path_xy_m[-1]) > view.free.clearance_at(*pose[:2])  # into the open
+        assert not planner._dropped.any()  # the target is kept
+        assert planner._handle_failure(retreat, view, pose, arrived=False) is None  # a back-off just ends
+    assert planner._handle_failure(goal, view, pose, arrived=False) is None  # out of back-offs …
+    assert planner._dropped.flat[goal.target_cells].all()  # … the target is given up
+
+
+def test_arriving_without_seeing_the_target_drops_it_at_once(rooms):
+    planner = NearestFrontier()
+    pose = (0.6, 0.6, 0.0)
+    view = planner.view(west_room_seen(rooms), pose)
+    goal = planner.select_goal(view, pose)
+    assert planner._handle_failure(goal, view, pose, arrived=True) is None
+    assert planner._dropped.flat[goal.target_cells].all()
