@@ -1,98 +1,173 @@
-"""Check a profiling report's host figures against an independent measurement of the same calls with ``timeit``.
+"""Check a profiling report's host figures against an independent measurement of the same calls on the same inputs.
 
-    python docs/profiling/independent_check.py docs/profiling/report.json
+    edge-explorer profile --profile host --record runs/profile-recording --out docs/profiling
+    python docs/profiling/independent_check.py docs/profiling/report.json [--recording runs/profile-recording]
 
 ``edge-explorer profile`` times the stages inside the daemon's running loop (its StageTimings) and each model with
-its own timer; this script calls the same functions in a plain ``timeit`` loop instead — fuse on depth frames
-rendered at 30 seeded poses in building A, project both maps, the predictor's whole stage (window, network,
-unshift) on the projected map, and every model on every backend the report measured — and prints both medians and
-their difference. ``timeit`` figures are the median over 5 repeats of the mean of ``number`` calls.
+its own timer. With ``--record`` the profiler also keeps every frame the loop fused, with the pose it was fused
+with, and the loop's own duration of every fuse / project / predictor call (``loop_timings.json``). This script
+replays that recording outside the loop — the same frames and poses fused in the same order into fresh maps, the
+same projections (both maps and the flown-footprint mask, as the daemon's ``project`` stage) and the same predictor
+calls after the same frames — times each call on its own with ``timeit`` (one call per sample, the median compared
+with the loop's median over the same measured window), and runs every model the report measured on its backend
+the same way. Two replays: back to back (nothing else between the calls), and with the simulated camera
+rendering each frame's pose before that frame is fused, as the loop does in the same thread. The fuse calls are also
+compared by thread CPU time (the loop meters it when recording), and the loop's calls that the scheduler never
+preempted are compared on their own: they separate time spent computing from time spent waiting for a core.
 """
 
 from __future__ import annotations
 
-import itertools
+import argparse
 import json
-import sys
+import time
 import timeit
+from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from edge_explorer.backends.chain import load_model
 from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.predict.predictor import PredictorRuntime
+from edge_explorer.profiling.loop import RECORDED_TIMINGS
 from edge_explorer.profiling.models import feed_for
 from edge_explorer.runtime.daemon import band_z_range_m
+from edge_explorer.runtime.depth_sources import ReplayDepthSource
 from edge_explorer.sim.camera import CameraPose, DepthCamera
 from edge_explorer.world.catalog import load_building
+from edge_explorer.world.grid import FREE, UNKNOWN
 
-REPEATS = 5
-
-
-def per_call_ms(call, number: int) -> float:
-    call()  # warm-up (JIT, caches)
-    return 1e3 * float(np.median(timeit.repeat(call, number=number, repeat=REPEATS))) / number
+MODEL_SAMPLES = 100
 
 
-def main(report_path: str) -> None:
-    doc = json.loads(Path(report_path).read_text())
-    stages = doc["loop"]["stages"]
-    raster = load_building(doc["loop"]["plan"])
-    camera = DepthCamera(raster)
+def timed_ms(call: Callable[[], object]) -> float:
+    """One call's duration in milliseconds, by ``timeit`` (its default timer, ``time.perf_counter``)."""
+    return 1e3 * timeit.timeit(call, number=1)
+
+
+def replay(recording: Path, timings: dict, predictor: PredictorRuntime | None, render: bool) -> dict[str, np.ndarray]:
+    """Fuse the recording's frames in order; project (and predict) where the loop decided. Per-call ms per stage."""
+    raster = load_building(timings["plan"])
+    band = HeightBand(**timings["band"])
+    maps = VoxelMaps(VoxelRegion.covering(raster.grid, *band_z_range_m(band)))  # the daemon's maps
+    flown = np.zeros(maps.high.grid.shape, dtype=np.uint8)
+    radius_cells = int(timings["footprint_clear_m"] / maps.high.resolution_m)
+    camera = DepthCamera(raster) if render else None
     rng = np.random.default_rng(0)
-    free = np.argwhere(raster.interior & ~raster.occupied)
-    frames = []
-    x0, y0 = raster.grid.origin_xy
-    res = raster.grid.resolution_m
-    for i, j in free[rng.choice(len(free), 30, replace=False)]:
-        pose = CameraPose(x0 + (j + 0.5) * res, y0 + (i + 0.5) * res, 1.7, float(rng.uniform(-np.pi, np.pi)))
-        frames.append((camera.render(pose, rng), pose.position_m, pose.rotation_map_from_optical()))
-    band = HeightBand()
-    maps = VoxelMaps(VoxelRegion.covering(raster.grid, *band_z_range_m(band)))  # the daemon's region
-    cycle, stamps = itertools.cycle(frames), itertools.count(1)
-
-    def fuse() -> None:
-        depth, position, rotation = next(cycle)
-        maps.fuse(depth, camera.config.intrinsics, position, rotation, 0.1 * next(stamps))
-
-    rows = [("fuse (loop stage)", stages["fuse"]["p50_ms"], per_call_ms(fuse, 30))]
-    rows.append(
-        (
-            "project (loop stage)",
-            stages["project"]["p50_ms"],
-            per_call_ms(lambda: (project(maps.high, band), project(maps.low, band)), 10),
+    decisions_after = {}
+    for d, frames in enumerate(timings["decision_frames"]):
+        decisions_after.setdefault(frames, []).append(d)
+    out: dict[str, list[float]] = {"fuse": [], "fuse_cpu": [], "project": [], "predictor": []}
+    source = ReplayDepthSource(recording)
+    while not source.finished:
+        frame = source.next_frame()
+        p = frame.pose
+        pose = CameraPose(p.x_m, p.y_m, p.z_m, p.yaw_rad, p.pitch_rad, p.roll_rad)
+        position, rotation = pose.position_m, pose.rotation_map_from_optical()
+        if camera is not None:
+            camera.render(pose, rng)
+        cpu0 = time.thread_time()
+        out["fuse"].append(
+            timed_ms(lambda: maps.fuse(frame.depth_m, frame.intrinsics, position, rotation, frame.stamp_s))  # noqa: B023
         )
-    )
+        out["fuse_cpu"].append(1e3 * (time.thread_time() - cpu0))
+        if radius_cells > 0 and p.z_m >= band.min_z_m:  # the daemon's flown footprint
+            row, col = maps.high.grid.cell_of(p.x_m, p.y_m)
+            cv2.circle(flown, (int(col), int(row)), radius_cells, 1, thickness=-1)
+        for _ in decisions_after.get(maps.frames_fused, ()):
+
+            def project_stage() -> np.ndarray:
+                high, _ = project(maps.high, band)
+                high[(flown != 0) & (high == UNKNOWN)] = FREE
+                return project(maps.low, band)[0]
+
+            out["project"].append(timed_ms(project_stage))
+            if predictor is not None:
+                low, low_grid = project(maps.low, band)
+                cell = tuple(int(v) for v in low_grid.cell_of(p.x_m, p.y_m))
+                out["predictor"].append(timed_ms(lambda: predictor.predict(low, cell)))  # noqa: B023
+    return {stage: np.asarray(ms) for stage, ms in out.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("report", type=Path, nargs="?", default=Path("docs/profiling/report.json"))
+    parser.add_argument("--recording", type=Path, help="the profile's --record folder (default: the report's)")
+    args = parser.parse_args()
+    doc = json.loads(args.report.read_text())
+    recording = args.recording or (Path(doc["loop"]["recording"]) if doc["loop"].get("recording") else None)
+    if recording is None or not (recording / RECORDED_TIMINGS).is_file():
+        raise SystemExit(f"no recording with {RECORDED_TIMINGS}: run edge-explorer profile with --record DIR")
+    timings = json.loads((recording / RECORDED_TIMINGS).read_text())
+    loop_ms = {stage: np.asarray(ms) for stage, ms in timings["samples_ms"].items()}
+    start = timings["window_start"]
+    stages = doc["loop"]["stages"]
     models_dir = Path(doc["models"][0]["card"]).parents[1]
-    engines = doc["loop"]["engines"]
-    if "predictor" in engines and "predictor" in stages:
-        e = engines["predictor"]
-        predictor = PredictorRuntime(load_model(models_dir / "predictor", (e["backend"],), e["precision"]))
-        low, low_grid = project(maps.low, band)
-        cell = tuple(int(v) for v in np.argwhere(low != 0).mean(axis=0))
-        rows.append(
-            (
-                "predictor (loop stage)",
-                stages["predictor"]["p50_ms"],
-                per_call_ms(lambda: predictor.predict(low, cell), 10),
-            )
+    engine = doc["loop"]["engines"].get("predictor")
+    predictor = None
+    if engine is not None:
+        predictor = PredictorRuntime(load_model(models_dir / "predictor", (engine["backend"],), engine["precision"]))
+
+    runs = {"back to back": replay(recording, timings, predictor, render=False)}
+    runs["renderer between frames"] = replay(recording, timings, predictor, render=True)
+    if timings.get("fuse_cpu_from") is not None:  # the loop's fuse thread CPU, on the fuse samples' indices
+        cpu = np.full(len(loop_ms["fuse"]), np.nan)
+        cpu[timings["fuse_cpu_from"] : timings["fuse_cpu_from"] + len(timings["fuse_cpu_ms"])] = timings["fuse_cpu_ms"]
+        loop_ms["fuse_cpu"] = cpu
+        start["fuse_cpu"] = start["fuse"]
+    rows = []
+    for stage in ("fuse", "fuse_cpu", "project", "predictor"):
+        if stage not in loop_ms or not len(loop_ms[stage]):
+            continue
+        window = loop_ms[stage][start[stage] :]
+        loop_p50 = stages[stage]["p50_ms"] if stage in stages else float(np.nanmedian(window))
+        label = "fuse thread CPU (metered in the loop)" if stage == "fuse_cpu" else f"{stage} (loop stage)"
+        for name, replayed in runs.items():
+            same = replayed[stage][start[stage] : start[stage] + len(window)]
+            paired = np.nanmedian(window[: len(same)] / same)
+            rows.append((f"{label}, replay {name}", loop_p50, float(np.median(same)), paired))
+    notes = []
+    if timings.get("fuse_preempted"):  # the fuse calls the scheduler never interrupted, against the same replayed
+        first = timings["fuse_cpu_from"]
+        preempted = np.asarray(timings["fuse_preempted"])[start["fuse"] - first :]
+        calm = np.flatnonzero(preempted == 0)
+        window = loop_ms["fuse"][start["fuse"] :]
+        same = runs["back to back"]["fuse"][start["fuse"] : start["fuse"] + len(window)]
+        calm = calm[calm < len(same)]
+        notes.append(
+            f"fuse calls in the loop's window preempted by the scheduler (≥ 1 involuntary context switch): "
+            f"{100 * (preempted > 0).mean():.0f} %, {preempted.mean():.2f} switches a call"
         )
+        if len(calm):
+            loop_calm, replay_calm = window[calm], same[calm]
+            paired = np.median(loop_calm / replay_calm)
+            notes.append(
+                f"the {len(calm)} calls never preempted: loop p50 {np.median(loop_calm):.2f} ms, the same frames "
+                f"replayed back to back {np.median(replay_calm):.2f} ms (paired {paired:.2f})"
+            )
     for model in doc["models"]:
         for run in model["runs"]:
             if run["latency_ms"] is None:
                 continue
             loaded = load_model(Path(model["card"]), (run["backend"],), run["precision"])
             feed = feed_for(loaded.backend.inputs)
+            for _ in range(5):
+                loaded.run(feed)  # warm-up, as the profiler's
+            ms = [timed_ms(lambda loaded=loaded, feed=feed: loaded.run(feed)) for _ in range(MODEL_SAMPLES)]
             label = f"{model['name']} {run['precision']} on {run['backend']} (model run)"
-            rows.append(
-                (label, run["latency_ms"]["p50_ms"], per_call_ms(lambda loaded=loaded, feed=feed: loaded.run(feed), 20))
-            )
-    print("| call | report p50 (ms) | timeit (ms) | difference |\n| --- | ---: | ---: | ---: |")
-    for label, report_ms, timeit_ms in rows:
-        print(f"| {label} | {report_ms:.2f} | {timeit_ms:.2f} | {100 * (report_ms - timeit_ms) / timeit_ms:+.1f} % |")
+            rows.append((label, run["latency_ms"]["p50_ms"], float(np.median(ms)), None))
+    print("| call | loop p50 (ms) | timeit p50 (ms) | difference | paired loop / replay (median) |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    for label, report_ms, timeit_ms, paired in rows:
+        ratio = "" if paired is None else f"{paired:.2f}"
+        difference = 100 * (report_ms - timeit_ms) / timeit_ms
+        print(f"| {label} | {report_ms:.2f} | {timeit_ms:.2f} | {difference:+.1f} % | {ratio} |")
+    for note in notes:
+        print(f"\n{note}")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "docs/profiling/report.json")
+    main()

@@ -4,16 +4,19 @@ Runs the daemon's real loop against the simulated vehicle (:mod:`edge_explorer.p
 shipped model on every backend available here (:mod:`edge_explorer.profiling.models`), and writes
 ``report.json`` + ``report.html`` to ``--out`` with a section per ``--profile`` (:mod:`edge_explorer.profiling.report`);
 a Markdown summary goes to the terminal. The ``host`` profile describes the machine the measurements come from and
-is the reference every estimate is scaled from. Exit code 0 whatever the verdicts (they are the report's content).
+is the reference every estimate is scaled from. Each model runs in the loop on the first backend of the host
+profile's order for it (``[backends]``). ``--record DIR`` keeps the flight's frames, poses and per-call timings for
+``docs/profiling/independent_check.py``; ``--replay DIR`` flies with those frames instead of rendering them.
+Exit code 0 whatever the verdicts (they are the report's content).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import shlex
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from edge_explorer.cli import positive_int
@@ -54,11 +57,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="timed runs per model and backend (default 100)",
     )
-    p.add_argument("--plan", default="A", metavar="PLAN", help="the simulated building (default A)")
+    p.add_argument("--plan", metavar="PLAN", help="the simulated building (default: the --replay recording's, else A)")
     p.add_argument(
         "--models", type=Path, default=MODELS_DIR, metavar="DIR", help=f"model folder (default {MODELS_DIR})"
     )
     p.add_argument("--out", type=Path, default=Path("runs/profile"), metavar="DIR", help="output folder")
+    p.add_argument(
+        "--record",
+        type=Path,
+        metavar="DIR",
+        help="also record every fused depth frame with its pose and the loop's per-call timings into DIR (about "
+        "100 kB a frame), for docs/profiling/independent_check.py to replay the same calls",
+    )
+    p.add_argument(
+        "--replay",
+        type=Path,
+        metavar="DIR",
+        help="take the depth frames and their poses from a --record folder instead of rendering them (the same "
+        "fuse calls without the simulated camera's work in the process)",
+    )
     p.set_defaults(func=_profile)
 
 
@@ -69,12 +86,21 @@ def _profile(args: argparse.Namespace) -> int:
     from edge_explorer.cli import write_json
     from edge_explorer.errors import EdgeExplorerError
     from edge_explorer.profiling.device_profile import load_profile
-    from edge_explorer.profiling.loop import LoopOptions, measure_loop
+    from edge_explorer.profiling.loop import RECORDED_TIMINGS, LoopOptions, measure_loop
     from edge_explorer.profiling.models import bench_models
     from edge_explorer.profiling.report import build_report, markdown_summary, write_html
 
     if args.warmup < 0:
         raise EdgeExplorerError(f"--warmup must be ≥ 0, got {args.warmup}")
+    if args.record is not None and args.record.exists() and not args.record.is_dir():
+        raise EdgeExplorerError(f"--record {args.record}: exists and is not a folder; name a (new) folder")
+    plan = args.plan or "A"
+    if args.replay is not None:
+        if args.record is not None and args.record.resolve() == args.replay.resolve():
+            raise EdgeExplorerError("--record and --replay name the same folder: record into another one")
+        recorded = args.replay / RECORDED_TIMINGS
+        if args.plan is None and recorded.is_file():
+            plan = json.loads(recorded.read_text())["plan"]
     host = load_profile(HOST_PROFILE)
     if not host.measured:
         raise EdgeExplorerError(f"profiles/{HOST_PROFILE}.toml must say measured = true: it describes this machine")
@@ -83,15 +109,18 @@ def _profile(args: argparse.Namespace) -> int:
     unknown = [b for b in backends if b not in BACKENDS]
     if unknown:
         raise EdgeExplorerError(f"--backend {unknown[0]!r}: choose from {', '.join(BACKENDS)}")
-    order = tuple(b for b in host.backend_order if b in backends) or backends
+    here = host.restricted_to(backends)
     if args.backend:  # every device is then assumed to run only these backends, in its own order
-        profiles = [replace(p, backend_order=tuple(b for b in p.backend_order if b in backends)) for p in profiles]
+        profiles = [p.restricted_to(backends) for p in profiles]
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
     options = LoopOptions(
         models_dir=args.models,
-        backend_order=order,
-        plan=args.plan,
+        backend_order=here.backend_order or backends,
+        model_orders={model: order or backends for model, order in here.model_orders.items()},
+        record_dir=args.record,
+        replay_dir=args.replay,
+        plan=plan,
         decisions=args.decisions,
         warmup_decisions=args.warmup,
         depth_hz=host.rates_hz.depth,

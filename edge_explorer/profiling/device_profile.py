@@ -2,7 +2,10 @@
 
 A profile names the CPU (cores, peak fp32 / int8 throughput per core), the accelerator (``none`` or ``edgetpu``
 with its peak int8 TOPS), memory, the latency budget per stage, the rates, CPU and memory ceilings, and the
-order in which the daemon tries inference backends. It is read by the daemon (backend order, rates) and by the
+order in which the daemon tries inference backends: ``[backends] order`` for every model, and optionally
+``predictor = [...]`` / ``policy = [...]`` for one model (the fastest backend differs per network on some CPUs:
+on the host the int8 TFLite predictor is faster than the int8 ONNX one, the int8 ONNX policy faster than the
+int8 TFLite one). It is read by the daemon (backend order, rates) and by the
 profiling report (budgets, and the peak-throughput ratio used to estimate a target from host measurements).
 Import-light on purpose: the daemon loads it.
 """
@@ -10,7 +13,7 @@ Import-light on purpose: the daemon loads it.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +22,7 @@ from edge_explorer.errors import EdgeExplorerError
 PROFILES_DIR = Path(__file__).resolve().parents[2] / "profiles"
 BACKEND_NAMES: tuple[str, ...] = ("edgetpu", "litert-cpu", "onnxruntime-cpu")
 ACCELERATORS: tuple[str, ...] = ("none", "edgetpu")
+MODEL_NAMES: tuple[str, ...] = ("predictor", "policy")  # the networks a [backends] table may order on their own
 
 
 class ProfileError(EdgeExplorerError, ValueError):
@@ -77,8 +81,20 @@ class DeviceProfile:
     budgets_ms: StageBudgetsMs
     rates_hz: RatesHz
     ceilings: Ceilings
-    backend_order: tuple[str, ...]
+    backend_order: tuple[str, ...]  # every model's, unless model_orders names it
     source: str = ""
+    model_orders: dict[str, tuple[str, ...]] = field(default_factory=dict)  # model name → its own backend order
+
+    def order_for(self, model: str) -> tuple[str, ...]:
+        """The backends the daemon tries for ``model`` (``predictor`` or ``policy``), in order."""
+        return self.model_orders.get(model, self.backend_order)
+
+    def restricted_to(self, backends: tuple[str, ...]) -> DeviceProfile:
+        """This profile with every backend order cut down to ``backends`` (``profile --backend``); an order may
+        become empty, and then no backend of it can run the model."""
+        keep = lambda order: tuple(b for b in order if b in backends)  # noqa: E731
+        orders = {model: keep(order) for model, order in self.model_orders.items()}
+        return replace(self, backend_order=keep(self.backend_order), model_orders=orders)
 
     def cpu_speed_ratio_fp32(self, reference: DeviceProfile) -> float:
         """Single-core peak fp32 throughput of ``reference`` over this device's: > 1 means this device is slower.
@@ -146,19 +162,44 @@ def parse_profile(data: dict[str, Any], source: str) -> DeviceProfile:
         raise ProfileError(f"{source}: [cpu] needs cores ≥ 1 and positive peak throughputs")
     if min(vars(parts["rates_hz"]).values()) <= 0 or min(vars(parts["budgets_ms"]).values()) <= 0:
         raise ProfileError(f"{source}: every rate and stage budget must be positive")
-    order = (data.get("backends") or {}).get("order")
-    if not isinstance(order, list) or not order or any(b not in BACKEND_NAMES for b in order):
-        raise ProfileError(f"{source}: [backends] order must be a non-empty list drawn from {list(BACKEND_NAMES)}")
-    if "edgetpu" in order and parts["accelerator"].kind != "edgetpu" and order[0] == "edgetpu" and not data["measured"]:
-        raise ProfileError(f"{source}: backend 'edgetpu' comes first but [accelerator] kind is not 'edgetpu'")
+    backends = data.get("backends")
+    if not isinstance(backends, dict):
+        raise ProfileError(f"{source}: missing table [backends] (order = [...], drawn from {list(BACKEND_NAMES)})")
+    unknown = sorted(set(backends) - {"order", *MODEL_NAMES})
+    if unknown:
+        raise ProfileError(
+            f"{source}: unknown key(s) {unknown} in [backends]; allowed: 'order' and a per-model order for "
+            f"{list(MODEL_NAMES)}"
+        )
+    orders = {
+        key: _backend_order(backends, key, parts["accelerator"].kind, data["measured"], source) for key in backends
+    }
+    if "order" not in orders:
+        raise ProfileError(f"{source}: [backends] needs order = [...] (the default for every model)")
     return DeviceProfile(
         name=data["name"],
         description=data["description"],
         measured=data["measured"],
-        backend_order=tuple(order),
+        backend_order=orders.pop("order"),
         source=source,
+        model_orders=orders,
         **parts,
     )
+
+
+def _backend_order(backends: dict[str, Any], key: str, accelerator: str, measured: bool, src: str) -> tuple[str, ...]:
+    """[backends] ``key``: a non-empty list of distinct backend names; an estimated target without an Edge TPU
+    cannot put ``edgetpu`` first (a measured host may: the chain skips a delegate it cannot load)."""
+    order = backends[key]
+    if not isinstance(order, list) or not order or any(b not in BACKEND_NAMES for b in order):
+        raise ProfileError(f"{src}: [backends] {key} must be a non-empty list drawn from {list(BACKEND_NAMES)}")
+    if len(set(order)) != len(order):
+        raise ProfileError(f"{src}: [backends] {key} names a backend twice: {order}")
+    if order[0] == "edgetpu" and accelerator != "edgetpu" and not measured:
+        raise ProfileError(
+            f"{src}: [backends] {key}: backend 'edgetpu' comes first but [accelerator] kind is not 'edgetpu'"
+        )
+    return tuple(order)
 
 
 def load_profile(name_or_path: str | Path) -> DeviceProfile:

@@ -81,11 +81,11 @@ def engine(profile: DeviceProfile, backend: str, precision: str) -> Engine:
     return Engine(backend, precision, per_core * 1e9)
 
 
-def target_engine(profile: DeviceProfile, artifacts: list[tuple[str, str]]) -> Engine | None:
-    """The engine the daemon's chain would pick on ``profile`` for a model with ``artifacts`` [(backend, precision)]:
-    the first backend of the profile's order that has an artifact (int8 preferred, as the daemon asks), skipping the
-    Edge TPU on a device without one. None when no backend of the order can run the model."""
-    for backend in profile.backend_order:
+def target_engine(profile: DeviceProfile, model: str, artifacts: list[tuple[str, str]]) -> Engine | None:
+    """The engine the daemon's chain would pick on ``profile`` for ``model`` with ``artifacts`` [(backend,
+    precision)]: the first backend of the profile's order for that model that has an artifact (int8 preferred, as the
+    daemon asks), skipping the Edge TPU on a device without one. None when no backend of the order can run it."""
+    for backend in profile.order_for(model):
         if backend == "edgetpu" and profile.accelerator.kind != "edgetpu":
             continue
         precisions = sorted({p for b, p in artifacts if b == backend}, key=lambda p: (p != "int8", p))

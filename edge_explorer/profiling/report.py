@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from edge_explorer.backends.chain import BACKENDS
-from edge_explorer.profiling.device_profile import DeviceProfile
+from edge_explorer.profiling.device_profile import MODEL_NAMES, DeviceProfile
 from edge_explorer.profiling.estimate import (
     BUDGETED_STAGES,
     CPU_BACKENDS,
@@ -109,7 +109,7 @@ def _model_rows(host: DeviceProfile, profile: DeviceProfile, models: Sequence[Mo
         if not info.present:
             rows.append({"model": info.name, "engine": None, "note": f"unavailable: {info.note}"})
             continue
-        target = target_engine(profile, _card_engines(info))
+        target = target_engine(profile, info.name, _card_engines(info))
         if target is None:
             rows.append({"model": info.name, "engine": None, "note": "no backend of the profile's order can run it"})
             continue
@@ -153,7 +153,7 @@ def _profile_section(
             backend, precision, _ = loop.engines[stage]
             model_engines[stage] = (
                 engine(host, backend, precision),
-                target_engine(profile, _card_engines(infos[stage])),
+                target_engine(profile, stage, _card_engines(infos[stage])),
             )
     stages, ratios = stage_estimates(host, profile, measured, model_engines)
     # CPU: the non-network share scales with the CPU ratio, a network's with its engine's (none on an accelerator).
@@ -169,7 +169,7 @@ def _profile_section(
     needs = []
     for info in models:
         if info.present and info.size.macs is not None:
-            target = target_engine(profile, _card_engines(info))
+            target = target_engine(profile, info.name, _card_engines(info))
             if target is not None:
                 budget = getattr(profile.budgets_ms, info.name)
                 needs.append(compute_need(info.name, info.size.macs, target, profile.rates_hz.decision, budget))
@@ -186,6 +186,7 @@ def _profile_section(
         "description": profile.description,
         "kind": "measured" if profile.measured else "estimate",
         "source": profile.source,
+        "backend_orders": {model: list(profile.order_for(model)) for model in MODEL_NAMES},
         "peaks": {
             "cpu": profile.cpu.model,
             "cores": profile.cpu.cores,
@@ -253,6 +254,7 @@ def build_report(
             "wall_s": loop.wall_s,
             "ending": loop.ending,
             "planner": loop.planner,
+            "recording": loop.recording,
             "engines": {k: {"backend": b, "precision": p, "artifact": a} for k, (b, p, a) in loop.engines.items()},
             "model_notes": list(loop.model_notes),
             "daemon_cpu_percent_of_one_core": loop.daemon_cpu_percent,
@@ -276,6 +278,11 @@ def _fmt(value: float | None, unit: str = "") -> str:
     if unit == "TOPS":
         return f"{value:.3g} TOPS"
     return f"{value:.2f} {unit}".strip() if abs(value) < 100 else f"{value:.0f} {unit}".strip()
+
+
+def _orders_text(section: dict[str, Any]) -> str:
+    """``predictor: a → b; policy: c → d`` (the order each model's backends are tried in on that device)."""
+    return "; ".join(f"{model}: {' → '.join(order) or 'none'}" for model, order in section["backend_orders"].items())
 
 
 def markdown_summary(doc: dict[str, Any]) -> str:
@@ -321,6 +328,8 @@ def markdown_summary(doc: dict[str, Any]) -> str:
         lines += [
             "",
             f"## {section['name']} ({kind}): {section['overall']}",
+            "",
+            f"Backend order: {_orders_text(section)}",
             "",
             "| check | value | limit | verdict |",
             "| --- | ---: | ---: | --- |",
@@ -499,7 +508,8 @@ def write_html(path: Path, doc: dict[str, Any], samples: dict[str, np.ndarray]) 
         out.append(
             f"<h3>{html.escape(section['name'])} — <span class='overall-{section['overall']}'>"
             f"{section['overall']}</span> <span class='{'est' if section['kind'] != 'measured' else ''}'>({kind})"
-            f"</span></h3><p>{html.escape(section['description'])}</p>"
+            f"</span></h3><p>{html.escape(section['description'])}. Backend order: "
+            f"{html.escape(_orders_text(section))}</p>"
         )
         rows, classes = [], []
         for v in section["verdicts"]:

@@ -237,7 +237,9 @@ def fly(options: RunOptions) -> dict[str, Any]:
         profile = load_profile(options.profile)
         raster = load_building(options.plan) if options.plan is not None else None
         noise_seed = run_seed(options.seed, raster.name, options.run_index) if raster is not None else options.seed
-        models = choose_models(options.models_dir, options.planner, profile.backend_order)
+        models = choose_models(
+            options.models_dir, options.planner, profile.backend_order, model_orders=profile.model_orders
+        )
         for note in models.notes:
             log.info(note)
         setpoint_rate_hz = max(profile.rates_hz.setpoint, 10.0)

@@ -69,7 +69,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -1109,7 +1109,12 @@ def _flight_ready(card: Path) -> tuple[bool, str]:
 
 
 def choose_models(
-    models_dir: Path, planner: str, backend_order: tuple[str, ...], precision: str = "int8", num_threads: int = 1
+    models_dir: Path,
+    planner: str,
+    backend_order: tuple[str, ...],
+    precision: str = "int8",
+    num_threads: int = 1,
+    model_orders: Mapping[str, tuple[str, ...]] | None = None,
 ) -> ModelChoice:
     """Load the shipped models the run can use (see DESIGN.md §8 and the module docstring).
 
@@ -1119,6 +1124,7 @@ def choose_models(
     :func:`edge_explorer.learn.policy_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
     why; ``frontier`` never loads the policy. The predictor (``models_dir/predictor/card.json``)
     is used when it loads; otherwise the run goes on without it (coverage = observed) and says why.
+    ``model_orders`` (the device profile's per-model orders) replaces ``backend_order`` for the models it names.
     """
 
     def load(name: str, wrapper: type) -> tuple[object | None, str]:
@@ -1127,7 +1133,8 @@ def choose_models(
         if not card.is_file():
             return None, f"no {name} model: {card} is missing"
         try:
-            model = wrapper(load_model(card, backend_order, precision, num_threads))
+            order = (model_orders or {}).get(name, backend_order)
+            model = wrapper(load_model(card, order, precision, num_threads))
         except EdgeExplorerError as exc:
             return None, str(exc)
         return model, model.model.report

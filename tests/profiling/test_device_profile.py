@@ -10,6 +10,8 @@ from edge_explorer.profiling.device_profile import (
     load_profile,
     parse_profile,
 )
+from edge_explorer.runtime.daemon import choose_models
+from tests.predict.test_predictor import write_predictor_model
 
 REQUIRED = {"host", "nuc10-i7-10710u", "coral-usb", "voxl-snapdragon821"}
 
@@ -73,3 +75,43 @@ def test_unknown_profile_lists_known(tmp_path):
     bad.write_text("name = ")
     with pytest.raises(ProfileError, match="not valid TOML"):
         load_profile(bad)
+
+
+def test_a_model_may_have_its_own_backend_order():
+    host = load_profile("host")
+    assert host.order_for("policy") == ("onnxruntime-cpu", "litert-cpu")  # measured faster here (host.toml)
+    assert host.order_for("predictor") == host.backend_order
+    nuc = load_profile("nuc10-i7-10710u")
+    assert nuc.model_orders == {} and nuc.order_for("policy") == nuc.backend_order
+    only_litert = host.restricted_to(("litert-cpu",))
+    assert only_litert.order_for("policy") == ("litert-cpu",) and only_litert.backend_order == ("litert-cpu",)
+
+
+@pytest.mark.parametrize(
+    ("backends", "message"),
+    [
+        ({"order": ["litert-cpu"], "planner": ["litert-cpu"]}, "unknown key(s) ['planner'] in [backends]"),
+        ({"order": ["litert-cpu"], "policy": []}, "[backends] policy must be a non-empty list"),
+        ({"order": ["litert-cpu"], "policy": ["tensorrt"]}, "[backends] policy must be a non-empty list"),
+        ({"order": ["litert-cpu"], "policy": ["litert-cpu", "litert-cpu"]}, "[backends] policy names a backend twice"),
+        ({"policy": ["litert-cpu"]}, "[backends] needs order = [...]"),
+        ({"order": ["litert-cpu"], "predictor": ["edgetpu", "litert-cpu"]}, "predictor: backend 'edgetpu' comes first"),
+    ],
+)
+def test_bad_backend_orders_name_the_problem(backends, message):
+    data = tomllib.loads((PROFILES_DIR / "nuc10-i7-10710u.toml").read_text())
+    data["backends"] = backends
+    with pytest.raises(ProfileError, match=re.escape(message)):
+        parse_profile(data, "nuc.toml")
+
+
+def test_the_daemon_loads_each_model_in_its_own_order(tmp_path):
+    """The per-model order reaches the daemon's model loading: the tiny predictor has only an ONNX artifact, so an
+    order of LiteRT alone cannot load it while the default order does."""
+    write_predictor_model(tmp_path / "predictor")
+    default = choose_models(tmp_path, "frontier", ("litert-cpu", "onnxruntime-cpu"))
+    assert default.predictor is not None and default.predictor.model.backend.name == "onnxruntime-cpu"
+    own = choose_models(
+        tmp_path, "frontier", ("litert-cpu", "onnxruntime-cpu"), model_orders={"predictor": ("litert-cpu",)}
+    )
+    assert own.predictor is None and "litert-cpu skipped: no tflite artifact" in own.notes[-1]

@@ -70,12 +70,15 @@ def test_networks_scale_by_their_engines_peak_and_the_decision_by_its_parts():
 
 def test_the_chain_order_decides_the_target_engine():
     artifacts = [("onnxruntime-cpu", "fp32"), ("onnxruntime-cpu", "int8"), ("litert-cpu", "int8")]
-    assert target_engine(NUC, artifacts) == engine(NUC, "litert-cpu", "int8")
-    assert target_engine(CORAL, [*artifacts, ("edgetpu", "int8")]).backend == "edgetpu"
-    assert target_engine(CORAL, artifacts).backend == "litert-cpu"  # no compiled model: the A72 runs it
+    assert target_engine(NUC, "predictor", artifacts) == engine(NUC, "litert-cpu", "int8")
+    assert target_engine(CORAL, "predictor", [*artifacts, ("edgetpu", "int8")]).backend == "edgetpu"
+    assert target_engine(CORAL, "predictor", artifacts).backend == "litert-cpu"  # no compiled model: the A72 runs it
     no_tpu = replace(HOST, backend_order=("edgetpu", "onnxruntime-cpu"))
-    assert target_engine(no_tpu, [("edgetpu", "int8"), ("onnxruntime-cpu", "fp32")]).backend == "onnxruntime-cpu"
-    assert target_engine(NUC, [("edgetpu", "int8")]) is None
+    assert (
+        target_engine(no_tpu, "predictor", [("edgetpu", "int8"), ("onnxruntime-cpu", "fp32")]).backend
+        == "onnxruntime-cpu"
+    )
+    assert target_engine(NUC, "predictor", [("edgetpu", "int8")]) is None
 
 
 def test_compute_need_arithmetic():
