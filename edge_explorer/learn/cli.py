@@ -140,6 +140,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     evpol.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
     evpol.set_defaults(func=_eval_policy)
 
+    curves = esub.add_parser(
+        "policy-curves",
+        help="compare training runs' val learning curves (coverage, success, collisions vs steps and wall time)",
+        description="Plot the val evaluations (eval.csv) of policy training runs side by side; write their figures.",
+    )
+    curves.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR", help="training run folders, each with a label")
+    curves.add_argument("--plot", type=Path, required=True, help="the figure (PNG)")
+    curves.add_argument("--json", type=Path, required=True, help="the figures per run (JSON)")
+    curves.set_defaults(func=_policy_curves)
+
 
 def _predictor_data(args: argparse.Namespace) -> int:
     from edge_explorer.learn.predictor_data import SampleConfig, generate_predictor_data
@@ -253,6 +263,27 @@ def _eval_policy(args: argparse.Namespace) -> int:
             "runs": [{k: v for k, v in r.items() if k != "curves"} for r in records],
         },
     )
+    return 0
+
+
+def _policy_curves(args: argparse.Namespace) -> int:
+    from edge_explorer.errors import EdgeExplorerError
+    from edge_explorer.learn.eval_policy import compare_runs
+
+    runs = {}
+    for item in args.runs:
+        label, sep, folder = item.partition("=")
+        if not sep or not label:
+            raise EdgeExplorerError(f"expected LABEL=RUN_DIR (e.g. pool2=runs/policy/pool2), got {item!r}")
+        runs[label] = Path(folder)
+    for label, run in compare_runs(runs, args.plot, args.json).items():
+        after = {k: run[k] for k in ("after_bc", "after_ppo", "best")}
+        cells = [
+            f"{k} cov {r['mean_coverage']:.3f} succ {r['success_rate']:.2f} coll/ep {r['collisions_per_episode']:.2f}"
+            for k, r in after.items()
+            if r is not None
+        ]
+        print(f"{label}: {run['ppo_steps']} PPO steps, {run['wall_s'] / 3600:.2f} h; " + "; ".join(cells))
     return 0
 
 

@@ -8,11 +8,16 @@ is flown on the same specs in the same call, so the ratio of average path length
 
 The actor is :func:`~edge_explorer.learn.policy_net.load_policy_module` of the weights file (torch, one thread), its
 action the argmax of the logits — the policy's deterministic choice, as in the daemon.
+
+:func:`compare_runs` sets training runs side by side: their val evaluations (``eval.csv`` of
+:mod:`~edge_explorer.learn.train_policy`) against PPO steps and wall time, one PNG and the figures as JSON.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import json
 import multiprocessing
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -22,6 +27,7 @@ from typing import Any
 import torch
 
 from edge_explorer.bench import explore as bench
+from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.policy_net import TorchPolicy, load_policy_module
 from edge_explorer.sim.env import Predictor
 from edge_explorer.world.raster import PlanRaster
@@ -92,3 +98,90 @@ def path_ratios(summary: dict[str, Any], methods: Sequence[str]) -> dict[str, fl
         return None if a is None or b is None else a / b
 
     return {**{plan: ratio(g) for plan, g in summary["plans"].items()}, "all": ratio(summary["all"])}
+
+
+CURVE_METRICS = ("mean_coverage", "success_rate", "collisions_per_episode")
+
+
+def _numbers(row: dict[str, str]) -> dict[str, Any]:
+    def value(text: str) -> Any:
+        if text == "":
+            return None
+        try:
+            return float(text)
+        except ValueError:
+            return text
+
+    return {k: value(v) for k, v in row.items()}
+
+
+def run_figures(run_dir: Path) -> dict[str, Any]:
+    """A training run's val evaluations and totals: every ``eval.csv`` row (plus ``train_wall_s``, the wall time
+    after the untrained actor's evaluation — BC, PPO and evaluations, not the expert episodes), the rows after BC
+    and after the last PPO evaluation, the best actor's row, PPO steps, wall time and SB3's last PPO steps/s."""
+    evals_csv = run_dir / "eval.csv"
+    if not evals_csv.exists():
+        raise EdgeExplorerError(f"{run_dir}: no eval.csv; pass a folder written by `edge-explorer train policy`")
+    with evals_csv.open(newline="") as fh:
+        rows = [_numbers(r) for r in csv.DictReader(fh)]
+    start = next((r["wall_s"] for r in rows if r["stage"] == "init"), 0.0)
+    for row in rows:
+        row["train_wall_s"] = round(row["wall_s"] - start, 1)
+    state = json.loads((run_dir / "state.json").read_text())
+    ppo = [r for r in rows if r["stage"] in ("phase1", "phase2")]
+    fps = None
+    if (run_dir / "progress.csv").exists():
+        with (run_dir / "progress.csv").open(newline="") as fh:
+            logged = [r["time/fps"] for r in csv.DictReader(fh) if r.get("time/fps")]
+        fps = float(logged[-1]) if logged else None
+    return {
+        "run": str(run_dir),
+        "ppo_steps": state["timesteps"],
+        "wall_s": round(state["wall_s"], 1),
+        "ppo_steps_per_s": fps,
+        "after_bc": next((r for r in rows if r["stage"] == "bc"), None),
+        "after_ppo": ppo[-1] if ppo else None,
+        "best": state.get("best_eval"),
+        "evaluations": rows,
+    }
+
+
+def compare_runs(runs: dict[str, Path], png: Path, json_path: Path) -> dict[str, Any]:
+    """Learning curves of several runs (label → run folder) in one figure — val coverage, success and collisions
+    per episode against PPO env steps (the BC actor at 0) and against wall time — and their figures as JSON."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from edge_explorer.cli import write_json
+
+    figures = {label: run_figures(Path(folder)) for label, folder in runs.items()}
+    fig, axes = plt.subplots(len(CURVE_METRICS), 2, figsize=(12, 9), sharex="col")
+    for label, run in figures.items():
+        rows = [r for r in run["evaluations"] if r["stage"] != "init"]
+        for i, metric in enumerate(CURVE_METRICS):
+            for j, x in enumerate(("timesteps", "train_wall_s")):
+                xs = [r[x] / (1 if j == 0 else 3600) for r in rows]
+                (line,) = axes[i, j].plot(xs, [r[metric] for r in rows], "o-", ms=3, label=label)
+                bc = [k for k, r in enumerate(rows) if r["stage"] == "bc"]
+                axes[i, j].plot([xs[k] for k in bc], [rows[k][metric] for k in bc], "s", ms=8, color=line.get_color())
+    for i, metric in enumerate(CURVE_METRICS):
+        axes[i, 0].set_ylabel(metric.replace("_", " "))
+        if metric == "collisions_per_episode":
+            for ax in axes[i]:
+                ax.set_yscale("symlog", linthresh=1.0)
+                ax.set_ylim(bottom=0)
+        else:
+            for ax in axes[i]:
+                ax.set_ylim(0, 1.02)
+    axes[-1, 0].set_xlabel("PPO env steps (square: after BC, at 0)")
+    axes[-1, 1].set_xlabel("wall time after the untrained evaluation [h] (BC + PPO + evaluations)")
+    axes[0, 0].legend()
+    fig.suptitle("val evaluation (deterministic actor, 8 val plans, 500 steps)")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    write_json(json_path, {"runs": figures})
+    return figures

@@ -11,7 +11,10 @@ Stages, each recorded in ``DIR/state.json`` so that ``--resume`` continues where
 2. **bc** — the actor is trained to imitate the expert (cross-entropy), and the value head to predict the expert's
    discounted return (MSE), on the shared features; ``bc.csv`` logs loss and held-out accuracy per epoch. The val
    evaluation before and after BC lands in ``eval.csv`` (stage ``init`` / ``bc``): how much BC contributed.
-3. **phase1** — PPO (stable-baselines3) without the predictor: reward on the observed map's F1.
+3. **phase1** — PPO (stable-baselines3) without the predictor: reward on the observed map's F1. With
+   ``curriculum_steps`` > 0 episodes start on the ``curriculum_start_fraction`` of the train plans with the smallest
+   interior area, the fraction growing linearly to all plans over that many PPO steps: small buildings can be
+   finished within ``max_steps``, so early PPO sees the goal reward instead of only truncated episodes.
 4. **phase2** — PPO with the predictor in every environment, thresholds annealed linearly from
    (``anneal_start_t_f_max``, ``anneal_start_t_o``) to the defaults (t_f_max 0.04, t_o 0.94) over the phase.
 
@@ -80,6 +83,10 @@ class PolicyTrainConfig:
     conv_strides: tuple[int, ...] = (4, 2, 2)
     pi_layers: tuple[int, ...] = (256,)
     vf_layers: tuple[int, ...] = (256,)
+    input_pool: int = 1
+    # curriculum: PPO episodes start on the smallest-interior fraction of the train plans, growing linearly to all
+    curriculum_steps: int = 0  # PPO steps until every plan is in play (0: no curriculum)
+    curriculum_start_fraction: float = 0.25
     # behaviour cloning
     expert: str = "frontier"
     expert_episodes: int = 40
@@ -118,11 +125,13 @@ class PolicyTrainConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be ≥ 1, got {getattr(self, name)}")
-        for name in ("expert_episodes", "bc_epochs", "phase1_steps", "phase2_steps"):
+        for name in ("expert_episodes", "bc_epochs", "phase1_steps", "phase2_steps", "curriculum_steps"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be ≥ 0, got {getattr(self, name)}")
         if self.expert not in EXPERTS:
             raise ValueError(f"expert must be one of {EXPERTS}, got {self.expert!r}")
+        if not 0 < self.curriculum_start_fraction <= 1:
+            raise ValueError(f"curriculum_start_fraction must be in (0, 1], got {self.curriculum_start_fraction}")
         if not 0 <= self.bc_holdout < 1:
             raise ValueError(f"bc_holdout must be in [0, 1), got {self.bc_holdout}")
         if not (0 < self.gamma <= 1 and 0 < self.gae_lambda <= 1 and self.reward_scale > 0):
@@ -148,7 +157,15 @@ class PolicyTrainConfig:
             conv_strides=self.conv_strides,  # type: ignore[arg-type]
             pi_layers=self.pi_layers,
             vf_layers=self.vf_layers,
+            input_pool=self.input_pool,
         )
+
+    def curriculum_fraction(self, timesteps: int) -> float:
+        """Fraction of the train plans (smallest interior first) PPO episodes are drawn from after ``timesteps``."""
+        if self.curriculum_steps == 0:
+            return 1.0
+        progress = min(1.0, timesteps / self.curriculum_steps)
+        return self.curriculum_start_fraction + progress * (1.0 - self.curriculum_start_fraction)
 
     def to_dict(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
@@ -189,16 +206,30 @@ def load_predictor(reference: str) -> Predictor:
 
 
 class TrainingWrapper(gym.Wrapper):
-    """Scales the reward for learning and reports the episode's collision count in the final ``info``."""
+    """Scales the reward for learning, reports the episode's collision count in the final ``info`` and draws each
+    episode's plan from the curriculum: the ``fraction`` of the env's plans with the smallest interior area."""
 
-    def __init__(self, env: ExplorationEnv, reward_scale: float) -> None:
+    def __init__(self, env: ExplorationEnv, reward_scale: float, seed: int = 0) -> None:
         super().__init__(env)
         self.reward_scale = reward_scale
         self.collisions = 0
+        self.rng = np.random.default_rng(seed)  # the curriculum's plan draws (a reset with a seed re-seeds it)
+        self.by_area = np.argsort([int(p.interior.sum()) for p in env.plans], kind="stable")
+        self.fraction = 1.0
 
-    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+    def set_curriculum(self, fraction: float) -> None:
+        """Draw the next episodes' plans from the ``fraction`` smallest (by interior area); 1.0 = all plans."""
+        self.fraction = fraction
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         self.collisions = 0
-        return self.env.reset(**kwargs)
+        options = dict(options or {})
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        if self.fraction < 1.0 and "plan_index" not in options:
+            count = max(1, int(np.ceil(self.fraction * len(self.by_area))))
+            options["plan_index"] = int(self.by_area[self.rng.integers(count)])
+        return self.env.reset(seed=seed, options=options)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
@@ -222,7 +253,7 @@ def make_env_fn(
         )
         env.reset(seed=seed)
         return Monitor(
-            TrainingWrapper(env, reward_scale), info_keywords=("coverage", "path_length_m", "collisions", "goal")
+            TrainingWrapper(env, reward_scale, seed), info_keywords=("coverage", "path_length_m", "collisions", "goal")
         )
 
     return make
@@ -526,9 +557,15 @@ def _callbacks(run: _Run, phase: str, phase_end: int, predictor_ref: str | None)
             self.next_eval = self.num_timesteps + config.eval_every_steps
             self.predictor = load_predictor(predictor_ref) if predictor_ref else None
             self._anneal()
+            self._curriculum()
 
         def _on_step(self) -> bool:
             return not run.stopped_early  # False ends learn() before the next rollout is used
+
+        def _curriculum(self) -> None:
+            fraction = config.curriculum_fraction(self.num_timesteps)
+            self.training_env.env_method("set_curriculum", fraction)
+            self.logger.record("train/curriculum_fraction", fraction)
 
         def _anneal(self) -> None:
             if phase != "phase2":
@@ -551,6 +588,7 @@ def _callbacks(run: _Run, phase: str, phase_end: int, predictor_ref: str | None)
                 if finished:
                     self.logger.record(f"rollout/{key}", float(np.mean([e[key] for e in finished])))
             self._anneal()
+            self._curriculum()
             if self.num_timesteps >= self.next_eval:
                 self.next_eval += config.eval_every_steps
                 result = run.evaluate(self.model, phase, self.predictor)

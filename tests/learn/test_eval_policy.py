@@ -8,7 +8,7 @@ import torch
 from edge_explorer.backends.card import sha256_of
 from edge_explorer.bench import explore as bench
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.learn.eval_policy import fly_policy, path_ratios
+from edge_explorer.learn.eval_policy import compare_runs, fly_policy, path_ratios
 from edge_explorer.learn.policy_card import count_macs, ship_policy
 from edge_explorer.learn.policy_net import PolicyActor, PolicyNetConfig, save_policy
 from edge_explorer.world.catalog import plan_to_raster
@@ -110,3 +110,18 @@ def test_ship_refuses_an_evaluation_of_other_weights(tmp_path):
     report.write_text(json.dumps({"model_sha256": "0" * 64}))
     with pytest.raises(EdgeExplorerError, match="another model"):
         ship_policy(run, tmp_path / "models", report, "", None)
+
+
+def test_compare_runs_reports_bc_and_ppo_figures_of_each_run(tmp_path):
+    plain = _run_dir(tmp_path)
+    with (plain / "eval.csv").open("a") as fh:
+        fh.write("phase1,64,32,2,0.0,0.0,,0.4,1.5\n")
+    (plain / "progress.csv").write_text("time/fps,time/total_timesteps\n30,32\n25,64\n")
+    figures = compare_runs({"plain": plain}, tmp_path / "curves.png", tmp_path / "curves.json")["plain"]
+    assert figures["ppo_steps"] == 64 and figures["ppo_steps_per_s"] == 25.0
+    assert figures["after_bc"]["mean_coverage"] == 0.6 and figures["after_bc"]["train_wall_s"] == 1.0
+    assert figures["after_ppo"]["collisions_per_episode"] == 1.5 and figures["after_ppo"]["train_wall_s"] == 31.0
+    assert json.loads((tmp_path / "curves.json").read_text())["runs"]["plain"]["ppo_steps"] == 64
+    assert (tmp_path / "curves.png").stat().st_size > 0
+    with pytest.raises(EdgeExplorerError, match="no eval.csv"):
+        compare_runs({"none": tmp_path / "missing"}, tmp_path / "x.png", tmp_path / "x.json")

@@ -7,6 +7,7 @@ from stable_baselines3 import PPO
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.policy_net import (
+    MapEncoder,
     PolicyActor,
     PolicyFeatures,
     PolicyNetConfig,
@@ -100,3 +101,54 @@ def test_loading_rejects_files_that_are_not_policies(tmp_path):
         load_policy_module(other)
     with pytest.raises(EdgeExplorerError, match="no such"):
         load_policy_module(tmp_path / "missing.safetensors")
+
+
+def test_input_pool_keeps_single_occupied_and_nonflight_cells_visible():
+    encoder = MapEncoder(PolicyNetConfig(conv_channels=(2, 2, 2), input_pool=2))
+    codes = torch.full((1, 237, 237), -1.0)  # all free
+    codes[0, 236, 236] = 1.0  # one occupied cell in the zero-padded last block
+    codes[0, 10, 10], codes[0, 10, 11] = 2.0, 1.0  # non-flight next to occupied in one block
+    channels = torch.cat([encode_codes(codes), encode_codes(torch.zeros(1, 237, 237))], dim=1)
+    pooled = encoder.pool(channels)
+    assert pooled.shape == (1, 6, 119, 119)
+    assert pooled[0, :3, 118, 118].tolist() == [0, 1, 0]  # the padding reads as unknown, not as free
+    assert pooled[0, :3, 5, 5].tolist() == [1, 1, 1]  # free, occupied and non-flight in one block: none hidden
+    assert pooled[0, 1].sum() == 2 and pooled[0, 2].sum() == 1 and pooled[0, 3:].sum() == 0
+    with pytest.raises(ValueError, match="input_pool"):
+        PolicyNetConfig(input_pool=0)
+
+
+def test_pooled_actor_has_the_same_keys_fewer_features_and_round_trips(tmp_path):
+    pooled = PolicyNetConfig(conv_channels=(4, 8, 8), pi_layers=(16,), vf_layers=(8,), input_pool=2)
+    torch.manual_seed(2)
+    actor = PolicyActor(pooled).eval()
+    assert actor.state_dict().keys() == PolicyActor(TINY).state_dict().keys()
+    assert actor.features_extractor.features_dim == 8 * 6 * 6 + 6  # 119 → 28 → 13 → 6
+    path = tmp_path / "pooled.safetensors"
+    save_policy(actor, pooled, path)
+    again = load_policy_module(path)
+    assert again.config.input_pool == 2
+    x = torch.randint(-1, 3, (2, 237, 237)).float()
+    last = torch.eye(6)[[1, 4]]
+    with torch.no_grad():
+        assert torch.equal(actor(x, x, last), again(x, x, last))
+
+
+@pytest.mark.slow
+def test_pooled_actor_exports_to_onnx_with_the_same_logits(tmp_path):
+    import onnxruntime as ort
+
+    from edge_explorer.export.networks import policy_network
+    from edge_explorer.export.onnx_formats import export_fp32
+
+    torch.manual_seed(3)
+    actor = PolicyActor(PolicyNetConfig(conv_channels=(4, 8, 8), pi_layers=(16,), input_pool=2)).eval()
+    path = tmp_path / "policy.onnx"
+    export_fp32(policy_network(actor), path)
+    session = ort.InferenceSession(str(path))
+    x = torch.randint(-1, 3, (1, 237, 237)).float()
+    last = torch.eye(6)[[2]]
+    feeds = {"high": x.numpy(), "thres": x.flip(1).numpy(), "last_action": last.numpy()}
+    with torch.no_grad():
+        expected = actor(x, x.flip(1), last).numpy()
+    assert np.allclose(session.run(None, feeds)[0], expected, atol=1e-5)

@@ -20,6 +20,7 @@ from edge_explorer.learn.train_policy import (
 )
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.catalog import plan_to_raster
+from edge_explorer.world.plan import FloorPlan, Rect
 from tests.conftest import two_room_plan
 
 TINY = {
@@ -46,6 +47,15 @@ TINY = {
 def test_shipped_config_loads():
     config = load_config("edge_explorer/learn/configs/policy.toml")
     assert config.expert == "frontier" and config.n_envs == 2
+
+
+def test_pooled_configs_differ_from_the_shipped_one_only_in_their_levers():
+    base = load_config("edge_explorer/learn/configs/policy.toml").to_dict()
+    pool2 = {"input_pool", "curriculum_steps", "phase1_steps", "eval_every_steps", "checkpoint_every_steps"}
+    for name, levers in (("policy-pool2", pool2), ("policy-pool2-w500", pool2 | {"f1_weight"})):
+        config = load_config(f"edge_explorer/learn/configs/{name}.toml")
+        assert {k for k, v in config.to_dict().items() if base[k] != v} == levers
+        assert config.net_config.input_pool == 2
 
 
 @pytest.mark.parametrize(
@@ -97,6 +107,33 @@ def test_wrapper_scales_reward_and_counts_collisions():
         assert r_wrapped == pytest.approx(0.1 * r_bare)
         assert info["collisions"] == collisions
     assert collisions > 0
+
+
+def test_curriculum_fraction_grows_linearly_to_all_plans():
+    config = config_from_dict({"curriculum_steps": 100, "curriculum_start_fraction": 0.2})
+    assert [config.curriculum_fraction(t) for t in (0, 50, 100, 1000)] == pytest.approx([0.2, 0.6, 1.0, 1.0])
+    assert config_from_dict({}).curriculum_fraction(0) == 1.0  # off by default
+    with pytest.raises(EdgeExplorerError, match="curriculum_start_fraction"):
+        config_from_dict({"curriculum_start_fraction": 0.0})
+
+
+def test_curriculum_draws_the_smallest_plans_first():
+    big = plan_to_raster(two_room_plan(name="big"))
+    walls = (Rect(0.0, 0.0, 2.0, 0.1), Rect(0.0, 1.4, 2.0, 1.5), Rect(0.0, 0.0, 0.1, 1.5), Rect(1.9, 0.0, 2.0, 1.5))
+    small = plan_to_raster(FloorPlan("small", ((0.0, 0.0), (2.0, 0.0), (2.0, 1.5), (0.0, 1.5)), walls))
+    wrapped = TrainingWrapper(ExplorationEnv([big, small], EnvConfig(max_steps=5)), reward_scale=1.0, seed=0)
+    assert wrapped.by_area.tolist() == [1, 0]
+    wrapped.set_curriculum(0.5)
+
+    def plan_after_reset(**kwargs) -> str:
+        wrapped.reset(**kwargs)
+        return wrapped.step(0)[-1]["plan"]
+
+    assert {plan_after_reset(seed=k) for k in range(6)} == {"small"}
+    wrapped.set_curriculum(1.0)
+    assert {plan_after_reset() for _ in range(20)} == {"small", "big"}
+    wrapped.set_curriculum(0.5)
+    assert plan_after_reset(options={"plan_index": 0}) == "big"  # an explicit plan wins over the curriculum
 
 
 def test_expert_episode_records_what_the_policy_sees(tmp_path):
