@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import resource
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -34,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from edge_explorer.backends.card import CARD_FILE, load_card
+from edge_explorer.runtime.cli import thread_cpu_s
 from edge_explorer.runtime.daemon import (
     STAGES,
     CoverageTruth,
@@ -46,12 +45,12 @@ from edge_explorer.runtime.daemon import (
 )
 from edge_explorer.runtime.depth_sources import DepthFrame, DepthSource, Recorder
 from edge_explorer.sim.camera import DepthIntrinsics
+from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
 
 log = logging.getLogger(__name__)
 
 RECORDED_TIMINGS = "loop_timings.json"  # written beside a recording (LoopOptions.record_dir)
 REPLAYED_STAGES: tuple[str, ...] = ("fuse", "project", "predictor")
-SIM_VEHICLE_THREAD = "sim-vehicle"  # the thread name SimulatedVehicle.start gives its physics loop
 
 
 @dataclass(frozen=True)
@@ -101,18 +100,6 @@ class LoopMeasurement:
     ending: str
     plan: str
     recording: str | None = None  # the record_dir, when the flight was recorded
-
-
-def thread_cpu_s(name: str) -> float:
-    """CPU seconds of the live thread called ``name`` (Linux /proc); 0 when there is none."""
-    for thread in threading.enumerate():
-        if thread.name == name and thread.native_id is not None:
-            try:
-                stat = Path(f"/proc/self/task/{thread.native_id}/stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                return 0.0
-            return (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
-    return 0.0
 
 
 class _MeteredSource:

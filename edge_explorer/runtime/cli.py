@@ -34,7 +34,6 @@ from typing import Any
 
 DESCRIPTION = "The on-device exploration daemon: depth + odometry in, MAVLink position setpoints out."
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
-SIM_VEHICLE_THREAD = "sim-vehicle"  # the simulated vehicle's thread name (edge_explorer.sim.vehicle)
 EXIT_SIGINT = 130
 
 log = logging.getLogger(__name__)
@@ -226,6 +225,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
     from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
     from edge_explorer.runtime.depth_sources import Recorder
     from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
+    from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
     from edge_explorer.world.catalog import load_building
 
     out = options.out_dir
@@ -279,10 +279,10 @@ def fly(options: RunOptions) -> dict[str, Any]:
                 region=VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)) if raster is not None else None,
                 recorder=recorder,
             )
-            vehicle_cpu0 = _thread_cpu_s(SIM_VEHICLE_THREAD)
+            vehicle_cpu0 = thread_cpu_s(SIM_VEHICLE_THREAD)
             with _stop_on_signals(daemon):
                 report = daemon.run(_progress_printer(models) if options.progress else None)
-            vehicle_cpu_s = _thread_cpu_s(SIM_VEHICLE_THREAD) - vehicle_cpu0
+            vehicle_cpu_s = thread_cpu_s(SIM_VEHICLE_THREAD) - vehicle_cpu0
             collisions = vehicle.state().collisions if vehicle is not None else None
             peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         summary = _summary(
@@ -372,7 +372,7 @@ class _stop_on_signals:
             signal.signal(sig, handler)
 
 
-def _thread_cpu_s(name: str) -> float:
+def thread_cpu_s(name: str) -> float:
     """CPU seconds of the live thread called ``name`` (Linux /proc); 0 if there is none."""
     for thread in threading.enumerate():
         if thread.name == name and thread.native_id is not None:

@@ -49,6 +49,7 @@ GRAVITY_MPS2 = 9.81
 FORCE_DISARM_MAGIC = 21196  # COMPONENT_ARM_DISARM param2 that disarms in flight (PX4 and ArduPilot)
 LANDED_BELOW_M = 0.1
 CONTACT_RELEASE_M = 0.05
+THREAD_NAME = "sim-vehicle"  # the physics loop's thread: `edge-explorer run` and the profiler meter its CPU apart
 HOLD_MODE = "LOITER"  # PX4 AUTO.LOITER ("Hold") and ArduPilot LOITER: keep the current position
 _STREAMED = {
     mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED",
@@ -283,7 +284,7 @@ class SimulatedVehicle:
         return self._endpoint.local_address
 
     def start(self) -> SimulatedVehicle:
-        self._thread = threading.Thread(target=self._run, name="sim-vehicle", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=THREAD_NAME, daemon=True)
         self._thread.start()
         return self
 
