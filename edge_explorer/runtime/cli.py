@@ -285,8 +285,10 @@ def fly(options: RunOptions) -> dict[str, Any]:
             vehicle_cpu_s = thread_cpu_s(SIM_VEHICLE_THREAD) - vehicle_cpu0
             collisions = vehicle.state().collisions if vehicle is not None else None
             peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+            rss_now_mb = resident_memory_mb()
+        memory_mb = {"peak_rss_mb": peak_rss_mb, "rss_at_end_mb": rss_now_mb}
         summary = _summary(
-            options, profile, models, raster, start, noise_seed, report, collisions, vehicle_cpu_s, peak_rss_mb, daemon
+            options, profile, models, raster, start, noise_seed, report, collisions, vehicle_cpu_s, memory_mb, daemon
         )
         _write_summary(out, summary, daemon, raster)
         _print_summary(summary)
@@ -298,10 +300,11 @@ def fly(options: RunOptions) -> dict[str, Any]:
 
 def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
     """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.bench.explore.start_pose`), drawn in
-    a forked child process that also renders one depth frame there. Both belong to the simulated world's setup, not
-    to the daemon whose peak RSS the run reports (a real drone starts wherever it stands): the draw builds the
-    training simulator (~50 MB), and the first render compiles the camera's numba kernels (~30 MB of LLVM on a fresh
-    clone), which the child writes to numba's on-disk cache so this process only loads them."""
+    a forked child process that also renders one depth frame there and runs the daemon's mapping kernels on it. None
+    of this belongs to the flight whose peak RSS the run reports: the draw builds the training simulator (~50 MB),
+    and on a fresh clone the first render and the first fused frame compile numba kernels (~30 MB of LLVM and half a
+    second of the first decisions). The child writes them to numba's on-disk cache, so the daemon only loads them —
+    as on a drone whose install step compiled them."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
@@ -316,8 +319,30 @@ def _draw_start_pose(plan: str, seed: int) -> tuple[float, float, float]:
 
     raster = load_building(plan)
     x_m, y_m, yaw_rad = start_pose(raster, seed)
-    DepthCamera(raster).render(CameraPose(float(x_m), float(y_m), 1.7, float(yaw_rad)))  # compile + cache the kernels
+    camera = DepthCamera(raster)
+    pose = CameraPose(float(x_m), float(y_m), 1.7, float(yaw_rad))
+    _compile_daemon_kernels(raster, camera.config.intrinsics, pose, camera.render(pose))
     return float(x_m), float(y_m), float(yaw_rad)
+
+
+def _compile_daemon_kernels(raster: Any, intrinsics: Any, pose: Any, depth_m: Any) -> None:
+    """Call each numba kernel of the daemon's loop once, with the loop's argument types, on one rendered frame:
+    fusion, projection, the coverage count and the follower's swept-path test (numba caches one machine-code
+    version per argument types, so these calls fill the cache the flight loads from)."""
+    import numpy as np
+
+    from edge_explorer.mapping.projection import project
+    from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
+    from edge_explorer.runtime.daemon import CoverageTruth, DaemonConfig, band_z_range_m
+    from edge_explorer.sim.dynamics import swept_path_blocked
+
+    config = DaemonConfig()
+    maps = VoxelMaps(VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)), config.fusion)
+    maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
+    high, high_grid = project(maps.high, config.band)
+    low, low_grid = project(maps.low, config.band)
+    CoverageTruth(raster).metrics(low, low_grid, None)
+    swept_path_blocked(np.zeros(high.shape, dtype=bool), high_grid, (pose.x_m, pose.y_m), (pose.x_m, pose.y_m))
 
 
 def _simulated_vehicle(raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any:
@@ -384,6 +409,21 @@ def thread_cpu_s(name: str) -> float:
     return 0.0
 
 
+def resident_memory_mb() -> dict[str, float]:
+    """This process's resident memory now, split as Linux counts it (``/proc/self/status``): ``anon`` is what the
+    process allocated (heap, arrays, numba's machine code), ``file`` the mapped pages of files — the shared
+    libraries — which are page cache, shared with other processes and reclaimable. ``file`` depends on the page
+    cache as well as on the process: a library pip has just written is cached in large folios that a page fault maps
+    whole, so right after a fresh install the same daemon counts ~80 MB more (docs/runtime/README.md, "Memory")."""
+    fields = {"RssAnon": "anon", "RssFile": "file", "RssShmem": "shmem"}
+    found: dict[str, float] = {}
+    for line in Path("/proc/self/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        if key in fields:
+            found[fields[key]] = int(value.split()[0]) / 1024  # kB
+    return found
+
+
 def _progress_printer(models: Any) -> Callable[[Any], None]:
     """Prints one progress line: coverage, path, decision latency, where the models run."""
     policy = "frontier" if models.policy is None else f"drl on {models.policy.model.backend.name}"
@@ -421,7 +461,7 @@ def _summary(
     report: Any,
     collisions: int | None,
     vehicle_cpu_s: float,
-    peak_rss_mb: float,
+    memory_mb: dict[str, Any],
     daemon: Any,
 ) -> dict[str, Any]:
     simulated = options.source == "sim"
@@ -473,7 +513,7 @@ def _summary(
             "depth_rate_hz": profile.rates_hz.depth,
             "load_average_1min": os.getloadavg()[0],
         },
-        "peak_rss_mb": peak_rss_mb,
+        **memory_mb,  # peak RSS (the kernel's high-water mark) and the RSS at the end, split by resident_memory_mb
         "wall_s": report.wall_s,
         "timeline": report.timeline,
         "path_xy_m": report.path_xy_m,
@@ -497,9 +537,16 @@ def _print_summary(s: dict[str, Any]) -> None:
         f"(at {pct(s['coverage_goal'])}: {at_goal}), "
         f"collisions {s['collisions']}, decisions {s['decisions']}, decision latency p50 {latency['p50']:.1f} ms "
         f"p95 {latency['p95']:.1f} ms, CPU {s['cpu']['daemon_percent_of_one_core']:.1f} % of one core "
-        f"(process {s['cpu']['process_percent_of_one_core']:.1f} %), peak RSS {s['peak_rss_mb']:.0f} MB",
+        f"(process {s['cpu']['process_percent_of_one_core']:.1f} %), peak RSS {s['peak_rss_mb']:.0f} MB"
+        + _rss_split(s.get("rss_at_end_mb", {})),
         flush=True,
     )
+
+
+def _rss_split(rss_mb: dict[str, float]) -> str:
+    if "anon" not in rss_mb or "file" not in rss_mb:
+        return ""
+    return f" (at the end {rss_mb['anon']:.0f} MB allocated + {rss_mb['file']:.0f} MB of mapped library pages)"
 
 
 def draw_run(path: Path, summary: dict[str, Any], view: Any, raster: Any, home_xy: tuple[float, float] | None) -> None:

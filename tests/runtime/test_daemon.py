@@ -682,6 +682,30 @@ def test_a_signal_mid_flight_holds_writes_the_summary_and_closes_the_tlog(tmp_pa
 
 
 @pytest.mark.slow
+def test_the_start_pose_child_compiles_every_kernel_the_flight_runs(tmp_path):
+    """On a fresh install numba compiles each kernel on its first call (~30 MB of LLVM, half a second). The start
+    pose's child process compiles them into numba's cache, so a flight that starts from an empty cache saves none of
+    its own: with the cache pre-filled by the child alone, the flight (child and daemon) writes nothing to it."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache"), "NUMBA_DEBUG_CACHE": "1"}
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    child = f"from edge_explorer.runtime.cli import _draw_start_pose; _draw_start_pose({str(plan)!r}, 0)"
+    warm = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=240, env=env)
+    assert warm.returncode == 0, warm.stderr
+    assert "data saved" in warm.stdout + warm.stderr  # the child compiled into the empty cache
+    flight = subprocess.run(
+        _command(tmp_path, "--time-limit-s", "3", "--no-return", "--models", str(tmp_path / "none")),
+        capture_output=True,
+        text=True,
+        timeout=240,
+        env=env,
+    )
+    assert flight.returncode == 0, flight.stdout + flight.stderr
+    output = flight.stdout + flight.stderr
+    assert "data loaded" in output and "data saved" not in output
+
+
+@pytest.mark.slow
 def test_the_runtime_path_imports_no_torch_tensorflow_or_sb3(tmp_path):
     """A short flight of the real command with both (tiny) models through the backend chain; then sys.modules."""
     models = tmp_path / "models"
@@ -705,6 +729,8 @@ def test_the_runtime_path_imports_no_torch_tensorflow_or_sb3(tmp_path):
     assert summary["waypoint_sources"].get("policy", 0) > 0
     assert {"predictor", "thresholding", "ego", "policy"} <= set(summary["stages_ms"])
     assert summary["collisions"] == 0
+    rss = summary["rss_at_end_mb"]
+    assert rss["anon"] > 10 and rss["file"] > 10 and summary["peak_rss_mb"] >= 0.9 * (rss["anon"] + rss["file"])
 
 
 @pytest.mark.slow
