@@ -10,10 +10,17 @@ replays that recording outside the loop — the same frames and poses fused in t
 same projections (both maps and the flown-footprint mask, as the daemon's ``project`` stage) and the same predictor
 calls after the same frames — times each call on its own with ``timeit`` (one call per sample, the median compared
 with the loop's median over the same measured window), and runs every model the report measured on its backend
-the same way. Two replays: back to back (nothing else between the calls), and with the simulated camera
-rendering each frame's pose before that frame is fused, as the loop does in the same thread. The fuse calls are also
-compared by thread CPU time (the loop meters it when recording), and the loop's calls that the scheduler never
-preempted are compared on their own: they separate time spent computing from time spent waiting for a core.
+the same way. Three replays: back to back (nothing else between the calls); with the simulated camera rendering
+each frame's pose before that frame is fused, as the loop does in the same thread; and paced as recorded, the
+renderer between frames: the thread sleeps until each frame's recorded time, as the loop's thread waits for the
+camera. The paced replay is the closest to the loop's conditions: on this host a thread that has idled runs the
+same calls up to twice as slowly for the next tens of milliseconds (``docs/profiling/stage_conditions.py``), and
+the loop's thread idles most of every frame period, while a back-to-back replay never does. The fuse calls
+are also compared by thread CPU time (the loop meters it when recording), and the loop's calls that the scheduler
+never preempted are compared on their own: they separate time spent computing from time spent waiting for a core.
+For each replayed stage the notes give the share of calls slower than 1.4 × the back-to-back median, with medians
+and means, for the loop and each replay: a call is either fast (as back to back) or slow (as after idling), and
+the share of slow ones moves a median by up to the whole gap between the two.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from edge_explorer.backends.chain import load_model
 from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.predict.predictor import PredictorRuntime
-from edge_explorer.profiling.loop import RECORDED_TIMINGS
+from edge_explorer.profiling.loop import RECORDED_TIMINGS, REPLAYED_STAGES
 from edge_explorer.profiling.models import feed_for
 from edge_explorer.runtime.daemon import band_z_range_m
 from edge_explorer.runtime.depth_sources import ReplayDepthSource
@@ -41,6 +48,7 @@ from edge_explorer.world.catalog import load_building
 from edge_explorer.world.grid import FREE, UNKNOWN
 
 MODEL_SAMPLES = 100
+SLOW = 1.4  # a call this many times the back-to-back median counts as slow
 
 
 def timed_ms(call: Callable[[], object]) -> float:
@@ -48,7 +56,9 @@ def timed_ms(call: Callable[[], object]) -> float:
     return 1e3 * timeit.timeit(call, number=1)
 
 
-def replay(recording: Path, timings: dict, predictor: PredictorRuntime | None, render: bool) -> dict[str, np.ndarray]:
+def replay(
+    recording: Path, timings: dict, predictor: PredictorRuntime | None, render: bool, paced: bool = False
+) -> dict[str, np.ndarray]:
     """Fuse the recording's frames in order; project (and predict) where the loop decided. Per-call ms per stage."""
     raster = load_building(timings["plan"])
     band = HeightBand(**timings["band"])
@@ -61,9 +71,11 @@ def replay(recording: Path, timings: dict, predictor: PredictorRuntime | None, r
     for d, frames in enumerate(timings["decision_frames"]):
         decisions_after.setdefault(frames, []).append(d)
     out: dict[str, list[float]] = {"fuse": [], "fuse_cpu": [], "project": [], "predictor": []}
-    source = ReplayDepthSource(recording)
+    source = ReplayDepthSource(recording, realtime=paced)
     while not source.finished:
         frame = source.next_frame()
+        if frame is None:  # a paced replay waited longer than the source's timeout: ask again
+            continue
         p = frame.pose
         pose = CameraPose(p.x_m, p.y_m, p.z_m, p.yaw_rad, p.pitch_rad, p.roll_rad)
         position, rotation = pose.position_m, pose.rotation_map_from_optical()
@@ -113,6 +125,7 @@ def main() -> None:
 
     runs = {"back to back": replay(recording, timings, predictor, render=False)}
     runs["renderer between frames"] = replay(recording, timings, predictor, render=True)
+    runs["paced as recorded, renderer between frames"] = replay(recording, timings, predictor, render=True, paced=True)
     if timings.get("fuse_cpu_from") is not None:  # the loop's fuse thread CPU, on the fuse samples' indices
         cpu = np.full(len(loop_ms["fuse"]), np.nan)
         cpu[timings["fuse_cpu_from"] : timings["fuse_cpu_from"] + len(timings["fuse_cpu_ms"])] = timings["fuse_cpu_ms"]
@@ -165,6 +178,19 @@ def main() -> None:
         ratio = "" if paired is None else f"{paired:.2f}"
         difference = 100 * (report_ms - timeit_ms) / timeit_ms
         print(f"| {label} | {report_ms:.2f} | {timeit_ms:.2f} | {difference:+.1f} % | {ratio} |")
+    for stage in REPLAYED_STAGES:
+        if stage not in loop_ms or not len(loop_ms[stage]):
+            continue
+        window = loop_ms[stage][start[stage] :]
+        fast = float(np.median(runs["back to back"][stage][start[stage] : start[stage] + len(window)]))
+        shares = []
+        replays = ((f"replay {name}", r[stage][start[stage] : start[stage] + len(window)]) for name, r in runs.items())
+        for name, same in (("loop", window), *replays):
+            shares.append(
+                f"{name} {100 * (same > SLOW * fast).mean():.0f} % (median {np.median(same):.2f}, mean "
+                f"{same.mean():.2f} ms)"
+            )
+        notes.append(f"{stage} calls slower than {SLOW} × the back-to-back median ({fast:.2f} ms): {'; '.join(shares)}")
     for note in notes:
         print(f"\n{note}")
 
