@@ -4,8 +4,12 @@
   (BatchNorm folded) — input ``map`` [1, 2, 256, 256] (:func:`~edge_explorer.predict.encoding.encode_windows`),
   output ``occupancy`` [1, 1, 256, 256] probabilities; the contract of :mod:`edge_explorer.predict.predictor`.
 * ``policy``: :func:`edge_explorer.learn.policy_net.load_policy_module` — inputs ``high``, ``thres``
-  [1, 237, 237] and ``last_action`` [1, 6] (raw codes and one-hot as float32), output ``logits`` [1, 6]; the
-  contract of :mod:`edge_explorer.plan.policy`.
+  [1, 237, 237] (the raw cell codes) and ``last_action`` [1, 6] (one-hot, float32), output ``logits`` [1, 6]; the
+  contract of :mod:`edge_explorer.plan.policy`. The ONNX graphs take the codes as **int8** and encode them with
+  three comparisons (:class:`Int8CodesPolicy`: the input needs no float copy and onnxruntime runs the comparisons
+  faster than the ReLU chain); the TFLite converter starts from the float-code graph instead
+  (:attr:`ExportNetwork.tflite_source`), whose ReLU encoding maps onto the Edge TPU (it has no EQUAL or CAST) and
+  whose int8 TFLite inputs take the codes as they are. Both encodings give the same 0/1 channels.
 
 The batch is fixed at 1 (what the daemon runs, and what full-integer TFLite needs).
 """
@@ -15,11 +19,13 @@ from __future__ import annotations
 import hashlib
 import json
 import subprocess
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
+from edge_explorer.export.calibration import Feed
 from edge_explorer.export.recipe import Recipe, RecipeError
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS, PREDICTOR_WINDOW_CELLS
 from edge_explorer.predict.encoding import INPUT_CHANNELS
@@ -31,8 +37,9 @@ PREDICTOR_ENCODING = (
     "OCCUPIED (0/1), UNKNOWN = (0, 0); north-up 0.20 m ego window of mapping.ego.pad_shift, robot cell (128, 128)"
 )
 POLICY_ENCODING = (
-    "edge_explorer.mapping.ego.encode_observation: high / thres = heading-up 237x237 code windows as float32 "
-    "(FREE -1, UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2), vehicle cell (118, 118); last_action = one-hot of 6"
+    "edge_explorer.mapping.ego.encode_observation: high / thres = heading-up 237x237 code windows (FREE -1, "
+    "UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2; int8 in ONNX, quantized int8 in TFLite), vehicle cell (118, 118); "
+    "last_action = one-hot of 6"
 )
 
 
@@ -45,9 +52,33 @@ class ExportNetwork:
     inputs: dict[str, tuple[int, ...]]  # name → shape, ONNX (torch) layout, batch 1
     outputs: tuple[str, ...]
     metadata: dict[str, str]  # written into the ONNX metadata_props and the TFLite metadata
+    input_dtypes: dict[str, str] = field(default_factory=dict)  # name → numpy dtype; float32 when not named
+    tflite_source: ExportNetwork | None = None  # the network the TFLite converter starts from, when not this one
+
+    def dtype(self, name: str) -> np.dtype:
+        return np.dtype(self.input_dtypes.get(name, "float32"))
 
     def example(self) -> tuple[torch.Tensor, ...]:
-        return tuple(torch.zeros(shape) for shape in self.inputs.values())
+        return tuple(torch.from_numpy(np.zeros(shape, self.dtype(name))) for name, shape in self.inputs.items())
+
+    def cast(self, feed: Feed) -> Feed:
+        """``feed`` with every input in this network's dtype (the recorded observations are float32)."""
+        return {name: np.asarray(feed[name], dtype=self.dtype(name)) for name in self.inputs}
+
+
+class Int8CodesPolicy(torch.nn.Module):
+    """The policy actor taking ``high`` and ``thres`` as int8 codes: encoded by comparison
+    (:func:`~edge_explorer.learn.policy_net.encode_codes_by_comparison`), then the actor's own layers."""
+
+    def __init__(self, actor: torch.nn.Module) -> None:
+        super().__init__()
+        self.actor = actor
+
+    def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        from edge_explorer.learn.policy_net import encode_codes_by_comparison
+
+        channels = torch.cat([encode_codes_by_comparison(high), encode_codes_by_comparison(thres)], dim=1)
+        return self.actor.logits_from_channels(channels, last_action)
 
 
 def git_revision() -> str:
@@ -104,15 +135,21 @@ def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None) -
     )
 
 
-def policy_network(module: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
-    """The export view of a deterministic policy actor ``forward(high, thres, last_action) → logits``."""
+def policy_network(actor: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
+    """The export view of a :class:`~edge_explorer.learn.policy_net.PolicyActor`: int8-code inputs for ONNX
+    (:class:`Int8CodesPolicy`), the actor itself (float codes) as the TFLite converter's source."""
     size = OBSERVATION_WINDOW_CELLS
+    inputs = {"high": (1, size, size), "thres": (1, size, size), "last_action": (1, NUM_ACTIONS)}
+    metadata = {**base_metadata("policy", checkpoint), "edge_explorer.output": "action logits [1, 6]; action = argmax"}
+    float_codes = ExportNetwork("policy", actor.eval(), inputs, ("logits",), metadata)
     return ExportNetwork(
         "policy",
-        module.eval(),
-        {"high": (1, size, size), "thres": (1, size, size), "last_action": (1, NUM_ACTIONS)},
+        Int8CodesPolicy(actor).eval(),
+        inputs,
         ("logits",),
-        {**base_metadata("policy", checkpoint), "edge_explorer.output": "action logits [1, 6]; action = argmax"},
+        metadata,
+        input_dtypes={"high": "int8", "thres": "int8"},
+        tflite_source=float_codes,
     )
 
 

@@ -141,7 +141,7 @@ def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations
 
     def act(obs: dict[str, np.ndarray]) -> int:
         with torch.no_grad():
-            args = (torch.from_numpy(np.asarray(obs[n], dtype=np.float32)[None]) for n in network.inputs)
+            args = (torch.from_numpy(np.asarray(obs[n], dtype=network.dtype(n))[None]) for n in network.inputs)
             return int(torch.argmax(network.module(*args)))
 
     predictor = None
@@ -157,7 +157,7 @@ def graph_cost(onnx_path: Path, network: ExportNetwork) -> dict:
     import onnx_tool
 
     model = onnx_tool.Model(str(onnx_path))
-    model.graph.shape_infer({name: np.zeros(shape, np.float32) for name, shape in network.inputs.items()})
+    model.graph.shape_infer({name: np.zeros(shape, network.dtype(name)) for name, shape in network.inputs.items()})
     model.graph.profile()
     macs = model.graph.macs  # onnx-tool 1.x: [multiply-accumulates, sparse-skipped]
     return {
@@ -203,7 +203,8 @@ def _export_in(
     convert_env: Path,
     log: Callable[[str], None],
 ) -> ExportReport:
-    name, held = recipe.name, obs.held_back
+    name = recipe.name
+    held, calibration = ([network.cast(f) for f in feeds] for feeds in (obs.held_back, obs.calibration))
     reference = torch_outputs(network, held)
     gate_kwargs = {"maps": obs.maps} if network.kind == "predictor" else {}
     gate = gate_fns.predictor_gate if network.kind == "predictor" else gate_fns.policy_gate
@@ -238,8 +239,8 @@ def _export_in(
 
     if "onnx_int8" in recipe.formats:
         int8_path = tmp / f"{name}_int8.onnx"
-        log(f"quantizing {int8_path.name} ({recipe.quantization.method}, {len(obs.calibration)} observations)")
-        onnx_formats.quantize_int8(fp32_path, int8_path, obs.calibration, recipe.quantization)
+        log(f"quantizing {int8_path.name} ({recipe.quantization.method}, {len(calibration)} observations)")
+        onnx_formats.quantize_int8(fp32_path, int8_path, calibration, recipe.quantization)
         row = measure("onnx_int8", int8_path, OnnxRuntimeCpuBackend(1), "int8", recipe_gate)
         if not row.passed:
             row.details["qdq_error_report"] = onnx_formats.qdq_error_report(fp32_path, int8_path, held[:8])
@@ -250,10 +251,15 @@ def _export_in(
 
     if "tflite_int8" in recipe.formats:
         tfl_path = tmp / f"{name}_int8.tflite"
-        log(f"converting {tfl_path.name} with onnx2tf (full integer, {len(obs.calibration)} observations)")
-        tflite.convert(fp32_path, tfl_path, obs.calibration, recipe.quantization.per_channel, tmp / "onnx2tf",
-                       convert_env)  # fmt: skip
-        tflite.finalize_tflite(tfl_path, list(network.inputs), network.outputs, network.metadata)
+        source, source_path = network.tflite_source or network, fp32_path
+        if source is not network:  # the converter's own fp32 graph (not shipped), e.g. the policy's float codes
+            source_path = tmp / f"{name}_tflite_source_fp32.onnx"
+            onnx_formats.export_fp32(source, source_path)
+        log(f"converting {tfl_path.name} from {source_path.name} with onnx2tf (full integer, {len(calibration)} "
+            "observations)")  # fmt: skip
+        tflite.convert(source_path, tfl_path, [source.cast(f) for f in obs.calibration],
+                       recipe.quantization.per_channel, tmp / "onnx2tf", convert_env)  # fmt: skip
+        tflite.finalize_tflite(tfl_path, list(source.inputs), source.outputs, source.metadata)
         xnnpack = tflite.xnnpack_coverage(tfl_path)
         row = measure("tflite_int8", tfl_path, LiteRtCpuBackend(1), "int8", recipe_gate)
         row.details["xnnpack"] = xnnpack

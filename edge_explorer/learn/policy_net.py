@@ -40,6 +40,7 @@ from torch import nn
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS
+from edge_explorer.world.grid import FREE, NON_FLIGHT, OCCUPIED
 
 WEIGHTS_FORMAT = "edge-explorer/policy-actor"
 CHANNELS_PER_LAYER = 3  # free, occupied, non-flight
@@ -95,6 +96,14 @@ def encode_codes(codes: torch.Tensor) -> torch.Tensor:
     return torch.stack([above_zero - codes, above_zero - 2.0 * above_one, above_one], dim=1)
 
 
+def encode_codes_by_comparison(codes: torch.Tensor) -> torch.Tensor:
+    """[B, H, W] integer cell codes (int8 as the daemon holds them) → the same channels as :func:`encode_codes`
+    by three equality tests. The int8-input ONNX graph uses it: onnxruntime runs three comparisons on int8 faster
+    than the ReLU chain in float, and the input needs no float copy. Not for TFLite: EQUAL and CAST do not run on
+    the Edge TPU, so the TFLite graph keeps :func:`encode_codes`."""
+    return torch.stack([codes == FREE, codes == OCCUPIED, codes == NON_FLIGHT], dim=1).float()
+
+
 class MapEncoder(nn.Module):
     """The two code layers → encoded channels → optional k×k max-pool → three conv + ReLU → flattened features."""
 
@@ -120,7 +129,11 @@ class MapEncoder(nn.Module):
             self.out_dim = int(self.forward(zeros, zeros).shape[1])
 
     def forward(self, high: torch.Tensor, thres: torch.Tensor) -> torch.Tensor:
-        return self.cnn(self.pool(torch.cat([encode_codes(high), encode_codes(thres)], dim=1)))
+        return self.from_channels(torch.cat([encode_codes(high), encode_codes(thres)], dim=1))
+
+    def from_channels(self, channels: torch.Tensor) -> torch.Tensor:
+        """The encoded [B, 6, H, W] channels (high's three, then thres's) → flattened features."""
+        return self.cnn(self.pool(channels))
 
 
 class PolicyFeatures(BaseFeaturesExtractor):
@@ -185,6 +198,11 @@ class PolicyActor(nn.Module):
 
     def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
         features = self.features_extractor.features(high, thres, last_action)
+        return self.action_net(self.policy_net(features))
+
+    def logits_from_channels(self, channels: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        """Logits from already encoded [B, 6, H, W] channels: the rest of :meth:`forward` after the encoding."""
+        features = torch.cat([self.features_extractor.encoder.from_channels(channels), last_action.float()], dim=1)
         return self.action_net(self.policy_net(features))
 
 

@@ -6,9 +6,10 @@ heading-up code windows) and ``last_action`` (float32 one-hot of 6). The exporte
 checked against its card by :func:`~edge_explorer.backends.chain.load_model`) follows this contract:
 
 * **inputs** are named after the observation's keys, ``high``, ``thres`` and ``last_action``; each takes its array
-  as float32 values (the codes −1, 0, 1, 2 and the one-hot), reshaped to the input's shape from the card — any
-  other preprocessing (one-hot channels, scaling) belongs inside the exported graph, so the daemon and the
-  simulator cannot disagree about it;
+  as it is (the codes −1, 0, 1, 2 and the one-hot), reshaped to the input's shape from the card; the backend
+  converts it to the input's type (float32 or int8 in ONNX, quantized in TFLite: the shipped int8 ONNX takes the
+  int8 codes without a copy) — any other preprocessing (one-hot channels, scaling) belongs inside the exported
+  graph, so the daemon and the simulator cannot disagree about it;
 * **output**: the model's output with 6 values, the action logits (or probabilities) — the action is their argmax,
   the policy's deterministic choice; a model with a single output of one value may answer the action id itself.
 """
@@ -73,9 +74,7 @@ class PolicyRuntime:
 
     def act(self, observation: Mapping[str, np.ndarray]) -> int:
         """The action id (0–5) for one observation dict (``high``, ``thres``, ``last_action``)."""
-        feed = {
-            name: np.asarray(observation[name], dtype=np.float32).reshape(shape) for name, shape in self._shapes.items()
-        }
+        feed = {name: np.asarray(observation[name]).reshape(shape) for name, shape in self._shapes.items()}
         out = np.asarray(self.model.run(feed)[self._output], dtype=np.float32).reshape(-1)
         if self._answers_id:
             action = int(round(float(out[0])))

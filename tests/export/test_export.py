@@ -194,9 +194,40 @@ def test_policy_round_trip_through_the_policy_runtime(tmp_path):
     with torch.no_grad():
         args = (torch.from_numpy(np.asarray(obs[k], np.float32)[None]) for k in ("high", "thres", "last_action"))
         expected = int(torch.argmax(module(*args)))
+    card = json.loads((report.out_dir / "card.json").read_text())
     for precision in ("fp32", "int8"):
         policy = PolicyRuntime(load_model(report.out_dir, ("onnxruntime-cpu",), precision=precision))
         assert policy.act(obs) == expected
+        inputs = card["artifacts"][f"policy_{precision}.onnx"]["inputs"]
+        assert [(i["name"], i["dtype"]) for i in inputs] == [("high", "int8"), ("thres", "int8"),
+                                                             ("last_action", "float32")]  # fmt: skip
+
+
+@needs_converter
+@pytest.mark.slow
+def test_the_policy_tflite_is_converted_from_the_float_code_graph(tmp_path):
+    """ONNX takes int8 codes (comparisons); the TFLite converter starts from the ReLU-encoded float-code graph, whose
+    ops all map onto the Edge TPU, and both answer the same actions."""
+    recipe = load_recipe(write_recipe(tmp_path, POLICY_RECIPE.replace('"onnx_int8"]', '"onnx_int8", "tflite_int8"]')))
+    report = pipeline.run_export(recipe, tmp_path / "models", network=policy_network(TinyPolicy()), log=quiet)
+    assert report.passed, report.table()
+    row = next(r for r in report.rows if r.format == "tflite_int8")
+    assert row.details["edgetpu"]["unsupported_ops"] == {} and "EQUAL" not in row.details["edgetpu"]["ops"]
+    assert sorted(p.name for p in report.out_dir.iterdir()) == [
+        "card.json",
+        "policy_fp32.onnx",
+        "policy_int8.onnx",
+        "policy_int8.tflite",
+    ]  # the source graph is not shipped
+    rng = np.random.default_rng(1)
+    obs = {
+        "high": rng.integers(-1, 3, (237, 237)).astype(np.int8),
+        "thres": rng.integers(-1, 3, (237, 237)).astype(np.int8),
+        "last_action": np.eye(6, dtype=np.float32)[4],
+    }
+    actions = {PolicyRuntime(load_model(report.out_dir, (backend,), precision="int8")).act(obs)
+               for backend in ("onnxruntime-cpu", "litert-cpu")}  # fmt: skip
+    assert len(actions) == 1
 
 
 # ---- TFLite ------------------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from edge_explorer.learn.policy_net import encode_codes
 from edge_explorer.learn.unet import UNet, UNetConfig, load_unet, save_unet
 from edge_explorer.mapping.ego import NUM_ACTIONS
 
@@ -37,13 +38,14 @@ def tiny_unet(windows: torch.Tensor, seed: int = 0) -> UNet:
 
 
 class TinyPolicy(nn.Module):
-    """``forward(high, thres, last_action) → logits`` like :func:`edge_explorer.learn.policy_net.load_policy_module`;
-    the last action dominates the logits so that the argmax is well defined under quantization noise."""
+    """The interface of :class:`edge_explorer.learn.policy_net.PolicyActor` (``forward`` on float codes,
+    ``logits_from_channels`` on the encoded channels) with a few kB of weights; the last action dominates the logits
+    so that the argmax is well defined under quantization noise."""
 
     def __init__(self, seed: int = 0) -> None:
         super().__init__()
         torch.manual_seed(seed)
-        self.conv = nn.Conv2d(2, 4, kernel_size=8, stride=8)
+        self.conv = nn.Conv2d(6, 4, kernel_size=8, stride=8)
         self.maps = nn.Linear(4 * 29 * 29, NUM_ACTIONS)
         self.last = nn.Linear(NUM_ACTIONS, NUM_ACTIONS)
         with torch.no_grad():
@@ -51,7 +53,10 @@ class TinyPolicy(nn.Module):
             self.last.weight.copy_(4.0 * torch.roll(torch.eye(NUM_ACTIONS), 1, dims=0))
 
     def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
-        x = torch.relu(self.conv(torch.stack([high, thres], dim=1)))
+        return self.logits_from_channels(torch.cat([encode_codes(high), encode_codes(thres)], dim=1), last_action)
+
+    def logits_from_channels(self, channels: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        x = torch.relu(self.conv(channels))
         return self.maps(torch.flatten(x, 1)) + self.last(last_action)
 
 

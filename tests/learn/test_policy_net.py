@@ -12,6 +12,7 @@ from edge_explorer.learn.policy_net import (
     PolicyFeatures,
     PolicyNetConfig,
     encode_codes,
+    encode_codes_by_comparison,
     load_policy_module,
     read_metadata,
     save_policy,
@@ -34,6 +35,26 @@ def test_codes_become_free_occupied_nonflight_channels():
     channels = encode_codes(codes)[0, :, 0]
     expected = torch.tensor([[1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=torch.float32)
     assert torch.equal(channels, expected)
+
+
+def test_the_comparison_encoding_of_int8_codes_equals_the_relu_encoding():
+    codes = torch.tensor([[[-1, 0, 1, 2]]], dtype=torch.int8)
+    assert torch.equal(encode_codes_by_comparison(codes), encode_codes(codes.float()))
+
+
+def test_the_int8_code_export_view_answers_the_actors_logits():
+    from edge_explorer.export.networks import policy_network
+
+    torch.manual_seed(5)
+    actor = PolicyActor(TINY).eval()
+    network = policy_network(actor)
+    assert network.tflite_source is not None and network.tflite_source.module is actor
+    codes = torch.randint(-1, 3, (2, 1, 237, 237), dtype=torch.int8)
+    last = torch.eye(6)[[3]]
+    with torch.no_grad():
+        expected = actor(codes[0].float(), codes[1].float(), last)
+        assert torch.allclose(network.module(codes[0], codes[1], last), expected, atol=1e-6)
+    assert [t.dtype for t in network.example()] == [torch.int8, torch.int8, torch.float32]
 
 
 def test_default_extractor_flattens_small_and_appends_the_last_action(env):
@@ -148,7 +169,7 @@ def test_pooled_actor_exports_to_onnx_with_the_same_logits(tmp_path):
     session = ort.InferenceSession(str(path))
     x = torch.randint(-1, 3, (1, 237, 237)).float()
     last = torch.eye(6)[[2]]
-    feeds = {"high": x.numpy(), "thres": x.flip(1).numpy(), "last_action": last.numpy()}
+    feeds = {"high": x.numpy().astype(np.int8), "thres": x.flip(1).numpy().astype(np.int8), "last_action": last.numpy()}
     with torch.no_grad():
         expected = actor(x, x.flip(1), last).numpy()
     assert np.allclose(session.run(None, feeds)[0], expected, atol=1e-5)

@@ -12,7 +12,7 @@ from onnx import TensorProto, helper, numpy_helper
 from edge_explorer.backends.base import TensorSpec
 from edge_explorer.backends.card import ArtifactCard, write_card
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.profiling.models import bench_models, count_onnx, graph_size, time_calls
+from edge_explorer.profiling.models import bench_models, count_onnx, feed_for, graph_size, time_calls
 from tests.predict.test_predictor import write_predictor_model
 
 ALL = ("edgetpu", "litert-cpu", "onnxruntime-cpu")
@@ -80,3 +80,15 @@ def test_time_calls_discards_warmup_and_times_each_call():
     calls = []
     samples = time_calls(lambda: calls.append(1), repeats=7, warmup=3)
     assert len(calls) == 10 and samples.shape == (7,) and (samples >= 0).all()
+
+
+def test_feeds_give_integer_inputs_cell_codes_and_everything_else_floats():
+    specs = (
+        TensorSpec("high", (1, 237, 237), "int8"),  # the policy's int8-code ONNX input
+        TensorSpec("map", (1, 8, 8, 2), "int8", scale=0.01, zero_point=-128),  # quantized TFLite: fed as floats
+        TensorSpec("last_action", (-1, 6), "float32"),
+    )
+    feed = feed_for(specs)
+    assert feed["high"].dtype == np.int8 and set(np.unique(feed["high"])) == {-1, 0, 1, 2}
+    assert feed["map"].dtype == np.float32 and np.abs(feed["map"]).max() <= 1.0
+    assert feed["last_action"].shape == (1, 6) and feed["last_action"].dtype == np.float32
