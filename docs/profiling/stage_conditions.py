@@ -153,12 +153,13 @@ def main() -> None:
     predictor = PredictorRuntime(load_model(args.models / "predictor", ("litert-cpu",), "int8"))
     robot = (low.shape[0] // 2, low.shape[1] // 2)
     path = policy.model.artifact
-    feeds = [{k: np.asarray(o[k], np.float32).reshape((1, *np.shape(o[k]))) for k in o} for o in obs]
+    dtypes = {spec.name: spec.dtype for spec in policy.model.backend.inputs}  # int8 codes, float32 one-hot
+    feeds = [{k: np.asarray(o[k], dtypes[k]).reshape((1, *np.shape(o[k]))) for k in o} for o in obs]
     alone = session(path)
     maps, band = fused_maps(), HeightBand()
     calls = {
         "policy stage (PolicyRuntime.act)": lambda i: policy.act(obs[i % len(obs)]),
-        "policy graph alone (session.run, float32 ready)": lambda i: alone.run(None, feeds[i % len(feeds)]),
+        "policy graph alone (session.run, inputs ready)": lambda i: alone.run(None, feeds[i % len(feeds)]),
         "project, 0.05 m map": lambda i: project(maps.high, band),
     }
     for call in calls.values():

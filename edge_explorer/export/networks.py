@@ -6,10 +6,11 @@
 * ``policy``: :func:`edge_explorer.learn.policy_net.load_policy_module` — inputs ``high``, ``thres``
   [1, 237, 237] (the raw cell codes) and ``last_action`` [1, 6] (one-hot, float32), output ``logits`` [1, 6]; the
   contract of :mod:`edge_explorer.plan.policy`. The ONNX graphs take the codes as **int8** and encode them with
-  three comparisons (:class:`Int8CodesPolicy`: the input needs no float copy and onnxruntime runs the comparisons
-  faster than the ReLU chain); the TFLite converter starts from the float-code graph instead
-  (:attr:`ExportNetwork.tflite_source`), whose ReLU encoding maps onto the Edge TPU (it has no EQUAL or CAST) and
-  whose int8 TFLite inputs take the codes as they are. Both encodings give the same 0/1 channels.
+  comparisons (:class:`Int8CodesPolicy`): the input needs no float copy, and the int8 graph's first convolution
+  reads the comparisons' result as integers (:func:`~edge_explorer.export.onnx_formats.fold_quantize_into_where`).
+  The TFLite converter starts from the float-code graph instead (:attr:`ExportNetwork.tflite_source`), whose ReLU
+  encoding maps onto the Edge TPU (it has no EQUAL, SELECT or CAST) and whose int8 TFLite inputs take the codes as
+  they are. Both encodings give the same 0/1 channels.
 
 The batch is fixed at 1 (what the daemon runs, and what full-integer TFLite needs).
 """
@@ -77,8 +78,7 @@ class Int8CodesPolicy(torch.nn.Module):
     def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
         from edge_explorer.learn.policy_net import encode_codes_by_comparison
 
-        channels = torch.cat([encode_codes_by_comparison(high), encode_codes_by_comparison(thres)], dim=1)
-        return self.actor.logits_from_channels(channels, last_action)
+        return self.actor.logits_from_channels(encode_codes_by_comparison(high, thres), last_action)
 
 
 def git_revision() -> str:

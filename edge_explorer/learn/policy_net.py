@@ -96,12 +96,17 @@ def encode_codes(codes: torch.Tensor) -> torch.Tensor:
     return torch.stack([above_zero - codes, above_zero - 2.0 * above_one, above_one], dim=1)
 
 
-def encode_codes_by_comparison(codes: torch.Tensor) -> torch.Tensor:
-    """[B, H, W] integer cell codes (int8 as the daemon holds them) → the same channels as :func:`encode_codes`
-    by three equality tests. The int8-input ONNX graph uses it: onnxruntime runs three comparisons on int8 faster
-    than the ReLU chain in float, and the input needs no float copy. Not for TFLite: EQUAL and CAST do not run on
-    the Edge TPU, so the TFLite graph keeps :func:`encode_codes`."""
-    return torch.stack([codes == FREE, codes == OCCUPIED, codes == NON_FLIGHT], dim=1).float()
+def encode_codes_by_comparison(*layers: torch.Tensor) -> torch.Tensor:
+    """[B, H, W] integer code layers (int8 as the daemon holds them) → [B, 3·len(layers), H, W]: per layer the same
+    channels as :func:`encode_codes`, by equality tests and one ``where``.
+
+    The int8-input ONNX graph uses it: the export folds the quantization of the ``where`` into its two constants
+    (:func:`edge_explorer.export.onnx_formats.fold_quantize_into_where`), so the first convolution reads the encoded
+    channels as integers straight from the comparisons. Not for TFLite: EQUAL, SELECT and CAST do not run on the Edge
+    TPU, so the TFLite graph keeps :func:`encode_codes`.
+    """
+    masks = torch.stack([codes == value for codes in layers for value in (FREE, OCCUPIED, NON_FLIGHT)], dim=1)
+    return torch.where(masks, 1.0, 0.0)
 
 
 class MapEncoder(nn.Module):

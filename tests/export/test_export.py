@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import onnx
 import pytest
 import torch
 
@@ -195,6 +196,9 @@ def test_policy_round_trip_through_the_policy_runtime(tmp_path):
         args = (torch.from_numpy(np.asarray(obs[k], np.float32)[None]) for k in ("high", "thres", "last_action"))
         expected = int(torch.argmax(module(*args)))
     card = json.loads((report.out_dir / "card.json").read_text())
+    int8 = onnx.load(report.out_dir / "policy_int8.onnx").graph.node
+    wheres = {n.output[0] for n in int8 if n.op_type == "Where"}
+    assert wheres and not any(n.op_type == "QuantizeLinear" and n.input[0] in wheres for n in int8)  # folded
     for precision in ("fp32", "int8"):
         policy = PolicyRuntime(load_model(report.out_dir, ("onnxruntime-cpu",), precision=precision))
         assert policy.act(obs) == expected

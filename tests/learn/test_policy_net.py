@@ -40,6 +40,8 @@ def test_codes_become_free_occupied_nonflight_channels():
 def test_the_comparison_encoding_of_int8_codes_equals_the_relu_encoding():
     codes = torch.tensor([[[-1, 0, 1, 2]]], dtype=torch.int8)
     assert torch.equal(encode_codes_by_comparison(codes), encode_codes(codes.float()))
+    both = encode_codes_by_comparison(codes, codes.flip(2))
+    assert torch.equal(both, torch.cat([encode_codes(codes.float()), encode_codes(codes.flip(2).float())], dim=1))
 
 
 def test_the_int8_code_export_view_answers_the_actors_logits():
