@@ -134,13 +134,13 @@ def fold_quantize_into_where(model: onnx.ModelProto) -> int:
         for node in graph.node:
             if node.op_type == "DequantizeLinear" and node.input[0] == quantize.output[0]:
                 node.input[2] = zero_point_name
-        replaced = set(where.input[1:])
+        replaced = {*where.input[1:], quantize.input[2]}
         where.input[1], where.input[2] = names
         where.output[0] = quantize.output[0]
         graph.node.remove(quantize)
         still_used = {name for node in graph.node for name in node.input}
         for unused in [t for t in graph.initializer if t.name in replaced - still_used]:
-            graph.initializer.remove(unused)  # the float branches nothing reads any more
+            graph.initializer.remove(unused)  # the float branches and int8 zero point nothing reads any more
         folds += 1
     return folds
 

@@ -48,7 +48,7 @@ def test_quantizing_a_where_of_constants_folds_into_uint8_constants_with_the_sam
     assert [n.op_type for n in model.graph.node] == ["Where", "DequantizeLinear"]
     where = model.graph.node[0]
     branches = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
-    assert {"one", "zero"}.isdisjoint(branches)  # the float branches are gone, not left unused
+    assert {"one", "zero", "zero_point"}.isdisjoint(branches)  # gone, not left unused
     one, zero = (branches[name] for name in where.input[1:])
     assert one.dtype == np.uint8 and (int(one), int(zero)) == (255, 0)  # int8 127 / −128 shifted as onnxruntime does
     assert np.array_equal(run(model, mask), before) and np.array_equal(before, mask.astype(np.float32))
