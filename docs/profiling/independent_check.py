@@ -5,11 +5,14 @@
 
 ``edge-explorer profile`` times the stages inside the daemon's running loop (its StageTimings) and each model with
 its own timer. With ``--record`` the profiler also keeps every frame the loop fused, with the pose it was fused
-with, and the loop's own duration of every fuse / project / predictor call (``loop_timings.json``). This script
-replays that recording outside the loop — the same frames and poses fused in the same order into fresh maps, the
-same projections (both maps and the flown-footprint mask, as the daemon's ``project`` stage) and the same predictor
-calls after the same frames — times each call on its own with ``timeit`` (one call per sample, the median compared
-with the loop's median over the same measured window), and runs every model the report measured on its backend
+with, and the loop's own duration of every fuse / project / predictor / policy call (``loop_timings.json``). This
+script replays that recording outside the loop — the same frames and poses fused in the same order into fresh maps,
+the same projections (both maps and the flown-footprint mask, as the daemon's ``project`` stage), the same
+predictor calls after the same frames, and the policy on the observation built from them (thresholding and the ego
+transform untimed between the two, as in the loop; the previous action is not recorded, so the observation's
+one-hot says "forward": the int8 graph's work does not depend on the values) — times each call on its own with
+``timeit`` (one call per sample, the median compared with the loop's median over the same measured window), and
+runs every model the report measured on its backend
 the same way. Three replays: back to back (nothing else between the calls); with the simulated camera rendering
 each frame's pose before that frame is fused, as the loop does in the same thread; and paced as recorded, the
 renderer between frames: the thread sleeps until each frame's recorded time, as the loop's thread waits for the
@@ -36,14 +39,19 @@ import cv2
 import numpy as np
 
 from edge_explorer.backends.chain import load_model
+from edge_explorer.mapping.ego import observation_from_maps
+from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
+from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
+from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.profiling.loop import RECORDED_TIMINGS, REPLAYED_STAGES
 from edge_explorer.profiling.models import feed_for
 from edge_explorer.runtime.daemon import band_z_range_m
 from edge_explorer.runtime.depth_sources import ReplayDepthSource
 from edge_explorer.sim.camera import CameraPose, DepthCamera
+from edge_explorer.sim.dynamics import Action
 from edge_explorer.world.catalog import load_building
 from edge_explorer.world.grid import FREE, UNKNOWN
 
@@ -57,9 +65,14 @@ def timed_ms(call: Callable[[], object]) -> float:
 
 
 def replay(
-    recording: Path, timings: dict, predictor: PredictorRuntime | None, render: bool, paced: bool = False
+    recording: Path,
+    timings: dict,
+    predictor: PredictorRuntime | None,
+    policy: PolicyRuntime | None,
+    render: bool,
+    paced: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Fuse the recording's frames in order; project (and predict) where the loop decided. Per-call ms per stage."""
+    """Fuse the recording's frames in order; project (predict, act) where the loop decided. Per-call ms per stage."""
     raster = load_building(timings["plan"])
     band = HeightBand(**timings["band"])
     maps = VoxelMaps(VoxelRegion.covering(raster.grid, *band_z_range_m(band)))  # the daemon's maps
@@ -70,7 +83,7 @@ def replay(
     decisions_after = {}
     for d, frames in enumerate(timings["decision_frames"]):
         decisions_after.setdefault(frames, []).append(d)
-    out: dict[str, list[float]] = {"fuse": [], "fuse_cpu": [], "project": [], "predictor": []}
+    out: dict[str, list[float]] = {"fuse": [], "fuse_cpu": [], "project": [], "predictor": [], "policy": []}
     source = ReplayDepthSource(recording, realtime=paced)
     while not source.finished:
         frame = source.next_frame()
@@ -90,17 +103,38 @@ def replay(
             row, col = maps.high.grid.cell_of(p.x_m, p.y_m)
             cv2.circle(flown, (int(col), int(row)), radius_cells, 1, thickness=-1)
         for _ in decisions_after.get(maps.frames_fused, ()):
+            projected: list[ObservedMaps] = []
 
-            def project_stage() -> np.ndarray:
-                high, _ = project(maps.high, band)
+            def project_stage() -> None:
+                high, high_grid = project(maps.high, band)
                 high[(flown != 0) & (high == UNKNOWN)] = FREE
-                return project(maps.low, band)[0]
+                low, low_grid = project(maps.low, band)
+                projected.append(ObservedMaps(high_grid, low_grid, high, low))  # noqa: B023
 
             out["project"].append(timed_ms(project_stage))
-            if predictor is not None:
-                low, low_grid = project(maps.low, band)
-                cell = tuple(int(v) for v in low_grid.cell_of(p.x_m, p.y_m))
-                out["predictor"].append(timed_ms(lambda: predictor.predict(low, cell)))  # noqa: B023
+            if predictor is None:
+                continue
+            observed = projected[0]
+            low_cell = tuple(int(v) for v in observed.low_grid.cell_of(p.x_m, p.y_m))
+            probabilities: list[np.ndarray] = []
+            out["predictor"].append(
+                timed_ms(lambda: probabilities.append(predictor.predict(observed.low, low_cell)))  # noqa: B023
+            )
+            if policy is None:
+                continue
+            thres = thresholded_map(probabilities[0], observed.low, observed.observed_area_m2(), ThresholdConfig())
+            high_cell = tuple(int(v) for v in observed.high_grid.cell_of(p.x_m, p.y_m))
+            observation = observation_from_maps(
+                observed.high,
+                thres,
+                observed.high_grid.resolution_m,
+                observed.low_grid.resolution_m,
+                high_cell,
+                low_cell,
+                p.yaw_rad,
+                Action.FORWARD,
+            )
+            out["policy"].append(timed_ms(lambda: policy.act(observation)))  # noqa: B023
     return {stage: np.asarray(ms) for stage, ms in out.items()}
 
 
@@ -118,22 +152,28 @@ def main() -> None:
     start = timings["window_start"]
     stages = doc["loop"]["stages"]
     models_dir = Path(doc["models"][0]["card"]).parents[1]
-    engine = doc["loop"]["engines"].get("predictor")
-    predictor = None
-    if engine is not None:
+    engines = doc["loop"]["engines"]
+    predictor = policy = None
+    if "predictor" in engines:
+        engine = engines["predictor"]
         predictor = PredictorRuntime(load_model(models_dir / "predictor", (engine["backend"],), engine["precision"]))
+    if "policy" in engines:
+        engine = engines["policy"]
+        policy = PolicyRuntime(load_model(models_dir / "policy", (engine["backend"],), engine["precision"]))
 
-    runs = {"back to back": replay(recording, timings, predictor, render=False)}
-    runs["renderer between frames"] = replay(recording, timings, predictor, render=True)
-    runs["paced as recorded, renderer between frames"] = replay(recording, timings, predictor, render=True, paced=True)
+    runs = {"back to back": replay(recording, timings, predictor, policy, render=False)}
+    runs["renderer between frames"] = replay(recording, timings, predictor, policy, render=True)
+    runs["paced as recorded, renderer between frames"] = replay(
+        recording, timings, predictor, policy, render=True, paced=True
+    )
     if timings.get("fuse_cpu_from") is not None:  # the loop's fuse thread CPU, on the fuse samples' indices
         cpu = np.full(len(loop_ms["fuse"]), np.nan)
         cpu[timings["fuse_cpu_from"] : timings["fuse_cpu_from"] + len(timings["fuse_cpu_ms"])] = timings["fuse_cpu_ms"]
         loop_ms["fuse_cpu"] = cpu
         start["fuse_cpu"] = start["fuse"]
     rows = []
-    for stage in ("fuse", "fuse_cpu", "project", "predictor"):
-        if stage not in loop_ms or not len(loop_ms[stage]):
+    for stage in ("fuse", "fuse_cpu", "project", "predictor", "policy"):
+        if stage not in loop_ms or not len(loop_ms[stage]) or not len(runs["back to back"][stage]):
             continue
         window = loop_ms[stage][start[stage] :]
         loop_p50 = stages[stage]["p50_ms"] if stage in stages else float(np.nanmedian(window))
@@ -179,7 +219,7 @@ def main() -> None:
         difference = 100 * (report_ms - timeit_ms) / timeit_ms
         print(f"| {label} | {report_ms:.2f} | {timeit_ms:.2f} | {difference:+.1f} % | {ratio} |")
     for stage in REPLAYED_STAGES:
-        if stage not in loop_ms or not len(loop_ms[stage]):
+        if stage not in loop_ms or not len(loop_ms[stage]) or not len(runs["back to back"][stage]):
             continue
         window = loop_ms[stage][start[stage] :]
         fast = float(np.median(runs["back to back"][stage][start[stage] : start[stage] + len(window)]))

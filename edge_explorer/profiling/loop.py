@@ -50,7 +50,7 @@ from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
 log = logging.getLogger(__name__)
 
 RECORDED_TIMINGS = "loop_timings.json"  # written beside a recording (LoopOptions.record_dir)
-REPLAYED_STAGES: tuple[str, ...] = ("fuse", "project", "predictor")
+REPLAYED_STAGES: tuple[str, ...] = ("fuse", "project", "predictor", "policy")
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,7 @@ def test_the_recording_holds_every_fused_frame_and_the_loops_own_timings(measure
         loop.samples_ms["predictor"],
         atol=1e-4,
     )
+    assert timings["samples_ms"]["policy"] == []  # no policy shipped here: nothing for the check to replay
     cpu_from = timings["fuse_cpu_from"]  # the fuse calls' thread CPU, metered from the first frames on
     assert cpu_from <= timings["window_start"]["fuse"] and len(timings["fuse_cpu_ms"]) == len(fuse_ms) - cpu_from
     assert len(timings["fuse_preempted"]) == len(timings["fuse_cpu_ms"]) and min(timings["fuse_preempted"]) >= 0
