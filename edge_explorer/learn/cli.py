@@ -41,6 +41,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     data.add_argument("--samples-per-plan", type=positive_int, default=10, help="coverage levels per plan (10)")
     data.add_argument("--plans-per-shard", type=positive_int, default=50)
     data.add_argument("--seed", type=int, default=0)
+    data.add_argument(
+        "--noise-free-fraction",
+        type=float,
+        default=0.0,
+        help="share of flights scanned with a noise-free sensor (default 0: every flight has the training noise)",
+    )
     data.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
     data.set_defaults(func=_predictor_data)
 
@@ -154,7 +160,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _predictor_data(args: argparse.Namespace) -> int:
     from edge_explorer.learn.predictor_data import SampleConfig, generate_predictor_data
 
-    config = SampleConfig(samples_per_plan=args.samples_per_plan, seed=args.seed)
+    config = SampleConfig(
+        samples_per_plan=args.samples_per_plan, seed=args.seed, noise_free_fraction=args.noise_free_fraction
+    )
     report = generate_predictor_data(
         args.plans,
         args.out,

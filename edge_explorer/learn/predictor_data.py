@@ -14,9 +14,12 @@ mix that records the training data (:data:`DEFAULT_EXPLORERS`, one drawn per pla
   to random goals, facing the motion with jitter, a partial spin at each goal; the greedy walk prefers goals near
   unexplored parts of the building and reaches high coverage, the other lingers. (Goals only *visible* from the
   current position, a straight-segment walk, rarely find the doors: it stalls in the first rooms.)
-* :class:`PlannerExplorer` — the benchmark's Nearest Frontier planner (:mod:`edge_explorer.plan`) flying the
-  six actions with the action table's dynamics, so the predictor sees the partial maps it will see in
-  ``frontier+pred``. Other planners (``fuel``, later the policy) join the same way.
+* :class:`PlannerExplorer` — the benchmark's Nearest Frontier and FUEL-style planners (:mod:`edge_explorer.plan`)
+  flying the six actions with the action table's dynamics, so the predictor sees the partial maps it will see in
+  ``frontier+pred`` and ``fuel+pred``. Other planners (the learned policy) join the same way.
+
+``SampleConfig.noise_free_fraction`` of the flights scan with a noise-free sensor, the rest with the training
+noise (DESIGN.md §6), so the predictor sees both kinds of maps.
 
 Samples and shards
 ------------------
@@ -35,6 +38,7 @@ A sample is about 7 kB in memory.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -252,6 +256,7 @@ DEFAULT_EXPLORERS: tuple[Explorer, ...] = (
     RandomGoalWalk(greedy_prob=0.8),
     RandomGoalWalk(greedy_prob=0.2),
     PlannerExplorer("frontier"),
+    PlannerExplorer("fuel"),
 )
 
 
@@ -318,6 +323,11 @@ class SampleConfig:
     min_coverage: float = 0.02
     seed: int = 0
     limits: FlightLimits = DEFAULT_LIMITS
+    noise_free_fraction: float = 0.0  # share of flights whose sensor has no occupied-cell noise (the rest: DEFAULT_SENSOR)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.noise_free_fraction <= 1.0:
+            raise ValueError(f"noise_free_fraction must be in [0, 1], got {self.noise_free_fraction}")
 
 
 @dataclass(frozen=True)
@@ -334,9 +344,14 @@ def collect_plan_samples(
 ) -> list[Sample]:
     """Fly one plan with a random explorer of ``explorers``; record the map when each drawn coverage level is reached.
 
-    Levels the flight never reaches are replaced by its final map (the most it could see), recorded once.
+    With ``noise_free_fraction`` > 0 that share of the flights (drawn per plan) scans with a noise-free sensor, so the
+    predictor learns from both kinds of maps the daemon meets. Levels the flight never reaches are replaced by its
+    final map (the most it could see), recorded once.
     """
     which = int(rng.integers(len(explorers)))
+    sensor = DEFAULT_SENSOR
+    if config.noise_free_fraction > 0 and rng.random() < config.noise_free_fraction:
+        sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=0.0)
     levels = list(np.sort(rng.uniform(config.min_coverage, 1.0, config.samples_per_plan)))
     samples: list[Sample] = []
     last: FlightStep | None = None
@@ -345,7 +360,7 @@ def collect_plan_samples(
         cell = scene.low_cell(s.pose[0], s.pose[1])
         samples.append(Sample(s.maps.low.copy(), cell, s.maps.observed_area_m2(), s.coverage, which))
 
-    for s in fly(scene, explorers[which], rng, limits=config.limits):
+    for s in fly(scene, explorers[which], rng, sensor=sensor, limits=config.limits):
         last = s
         if levels and s.coverage >= levels[0]:
             record(s)
