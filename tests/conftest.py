@@ -1,10 +1,27 @@
-"""Shared tiny fixtures: a two-room plan small enough to reason about by hand."""
+"""Shared tiny fixtures: a two-room plan small enough to reason about by hand; the suite leaves the tree clean."""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from edge_explorer.world.plan import FloorPlan, Furniture, Rect
+from tests.tree_state import new_entries, porcelain
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def tree_stays_clean() -> Iterator[None]:
+    """Tests write only into ignored folders (tmp_path, runs/): nothing new in ``git status`` after the session."""
+    before = porcelain(REPO_ROOT)
+    yield
+    if before is None:
+        return  # not a git checkout (an unpacked sdist): nothing to compare
+    written = new_entries(before, porcelain(REPO_ROOT) or frozenset())
+    assert not written, "the test session wrote into the tree outside ignored folders: " + ", ".join(written)
 
 
 def two_room_plan(door: bool = True, name: str = "two-rooms") -> FloorPlan:

@@ -107,12 +107,15 @@ def node_profile(path: Path, feeds: list[dict[str, np.ndarray]], before: Callabl
     options = ort.SessionOptions()
     options.intra_op_num_threads = options.inter_op_num_threads = 1
     options.enable_profiling = True
-    options.profile_file_prefix = str(Path(tempfile.mkdtemp()) / "policy")
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    for i in range(runs):
-        before()
-        session.run(None, feeds[i % len(feeds)])
-    events = json.loads(Path(session.end_profiling()).read_text())
+    # onnxruntime writes its trace to ``<prefix>_<time>.json``, by default in the working directory (the repository
+    # root): the trace goes into a temporary folder that is removed once read.
+    with tempfile.TemporaryDirectory(prefix="edge-explorer-ort-profile-") as folder:
+        options.profile_file_prefix = str(Path(folder) / "policy")
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        for i in range(runs):
+            before()
+            session.run(None, feeds[i % len(feeds)])
+        events = json.loads(Path(session.end_profiling()).read_text())
     per_node: dict[str, list[float]] = {}
     ops, moved = {}, {}
     for e in events:
