@@ -229,7 +229,9 @@ def run_episode(
             ending = "step_cap"
             break
         t = time.perf_counter()
-        action = policy(observation) if planner is None else planner.act(env.maps, env.pose, previous)
+        action = (
+            policy(observation) if planner is None else planner.act(env.maps, env.pose, previous, env.thresholded_low)
+        )
         planner_s += time.perf_counter() - t
         if action is None:
             ending = "explored"

@@ -1,14 +1,19 @@
 """The common interface of the exploration planners the benchmark flies, and their registry.
 
-A planner sees what the vehicle has observed and where it is, and answers one of the six action ids
-(:class:`~edge_explorer.sim.dynamics.Action`) per step — the DRL policy's interface, so every method flies the same
-vehicle and path lengths compare. ``None`` means the planner has nothing left to explore.
+A planner sees what the vehicle has observed and where it is — and, where a predictor runs, the fused map
+(DESIGN.md §5: observed cells plus the thresholded prediction treated as known) — and answers one of the six action
+ids (:class:`~edge_explorer.sim.dynamics.Action`) per step, so every method flies the same vehicle and path lengths
+compare. ``None`` means the planner has nothing left to explore. Planners choose *goals* (where to look next); the
+shared :class:`~edge_explorer.plan.frontier.GoalPlanner` loop plans the path through observed free space and
+follows it, so a prediction never makes a cell flyable.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Protocol
+
+import numpy as np
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.observed import ObservedMaps
@@ -20,9 +25,12 @@ class Planner(Protocol):
     def reset(self) -> None:
         """Start a new flight: forget goals and anything remembered about the last one."""
 
-    def act(self, maps: ObservedMaps, pose: Pose, previous_action: int) -> int | None:
-        """Next action id from the observed maps, the pose (x_m, y_m, yaw_rad) and the previous action (the one
-        whose momentum the vehicle carries: hover after a collision); ``None`` when done."""
+    def act(
+        self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
+    ) -> int | None:
+        """Next action id from the observed maps, the pose (x_m, y_m, yaw_rad), the previous action (the one
+        whose momentum the vehicle carries: hover after a collision) and the fused 0.20 m map (``None``, or the
+        observed low-res map, without a predictor); ``None`` when done."""
 
 
 def _nearest_frontier(table: ActionTable | None) -> Planner:
@@ -43,11 +51,21 @@ def _fuel(table: ActionTable | None) -> Planner:
     return FuelPlanner(table=table)
 
 
-PLANNERS: dict[str, Callable[[ActionTable | None], Planner]] = {"frontier": _nearest_frontier, "fuel": _fuel}
+def _predictive(table: ActionTable | None) -> Planner:
+    from edge_explorer.plan.predictive import PredictiveFrontier
+
+    return PredictiveFrontier(table=table)
+
+
+PLANNERS: dict[str, Callable[[ActionTable | None], Planner]] = {
+    "frontier": _nearest_frontier,
+    "fuel": _fuel,
+    "predfrontier": _predictive,
+}
 
 
 def make_planner(name: str, table: ActionTable | None = None) -> Planner:
-    """A planner by its benchmark name (``frontier`` or ``fuel``) with default settings."""
+    """A planner by its benchmark name (``frontier``, ``fuel``, ``predfrontier``) with default settings."""
     try:
         return PLANNERS[name](table)
     except KeyError:

@@ -279,14 +279,21 @@ class GoalPlanner:
     def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def view(self, maps: ObservedMaps, pose: Pose) -> View:
-        """This step's free space, traversable cells and frontier (less the dropped targets)."""
+    def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
+        """This step's free space, traversable cells and frontier (less the dropped targets). The frontier planners
+        target the observed map's frontier and ignore ``fused_low``; a predictive planner overrides this."""
+        return View(maps, pose, frontier_mask(maps.low) & ~self.dropped(maps), self.config)
+
+    def dropped(self, maps: ObservedMaps) -> np.ndarray:
+        """The targets dropped this flight (bool on the 0.20 m grid), reset when the map's shape changes."""
         if self._dropped is None or self._dropped.shape != maps.low.shape:
             self._dropped = np.zeros(maps.low.shape, dtype=bool)
-        return View(maps, pose, frontier_mask(maps.low) & ~self._dropped, self.config)
+        return self._dropped
 
-    def act(self, maps: ObservedMaps, pose: Pose, previous_action: int) -> int | None:
-        view = self.view(maps, pose)
+    def act(
+        self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
+    ) -> int | None:
+        view = self.view(maps, pose, fused_low)
         for _ in range(3):  # a new goal may fail at once (reached, target unseen): then take the next one
             goal = self._goal
             status = "replan" if goal is None else self.status(goal, view, pose)

@@ -1,0 +1,155 @@
+"""The predictive expert (benchmark method ``predfrontier``): frontier goals on the fused map, scored by the
+information a view from there would add per metre of path.
+
+Fused map (DESIGN.md §5): the observed 0.20 m map with the thresholded prediction treated as known. A *fused
+frontier* cell is an observed FREE cell with an 8-neighbour that is UNKNOWN in the fused map, so the vehicle never
+flies to a frontier the predictor has already filled in. When no fused frontier is left (the prediction claims the
+rest of the building) the observed frontier takes over, so the flight can still confirm what the predictor was
+unsure of. Without a predictor the fused map is the observed map and this is a gain-scored frontier explorer.
+
+Goals: the fused frontier is cut into clusters (:func:`~edge_explorer.plan.fuel.frontier_clusters`). For each
+cluster the goal is the planning-graph node within ``goal_radius_m`` of it that is nearest along the graph (one
+Dijkstra search from the vehicle serves every cluster). Its *gain* is the number of 0.20 m cells that are UNKNOWN in
+the fused map — unobserved and not confidently predicted — within sensor range of the goal with a line of sight
+that crosses no fused OCCUPIED cell (all around: the vehicle turns at the goal to face them). The cluster with the
+best ``gain / (path_m + cost_offset_m)`` is chosen; clusters whose gain is below ``min_gain_cells`` are flown only
+when nothing better is left. The goal faces the centre of the unknown cells it would see.
+
+Paths, following, replanning and failure handling are the shared :class:`~edge_explorer.plan.frontier.GoalPlanner`
+loop: paths run only through *observed* free space at the robot's clearance, so a prediction never makes a cell
+flyable, and the goal is replanned when most of its cluster stops being a fused frontier (seen or predicted).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.plan.follow import Pose
+from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, frontier_mask, goal_candidates
+from edge_explorer.plan.fuel import frontier_clusters
+from edge_explorer.sim.dynamics import ActionTable
+from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
+
+
+@dataclass(frozen=True)
+class PredictiveConfig:
+    """Clustering and goal scoring of :class:`PredictiveFrontier`."""
+
+    planner: PlannerConfig = PlannerConfig()
+    sensor: SensorConfig = SensorConfig()
+    cluster_max_radius_m: float = 1.0
+    cost_offset_m: float = 2.0  # gain / (path + offset): keeps a goal under the vehicle from scoring infinitely
+    min_gain_cells: int = 4  # clusters revealing fewer unknown cells wait until nothing better is left
+    done_fraction: float = 0.8  # a target cluster is done when this share of its cells is no fused frontier
+
+    def __post_init__(self) -> None:
+        if self.cluster_max_radius_m <= 0 or self.cost_offset_m <= 0 or self.min_gain_cells < 0:
+            raise ValueError("cluster_max_radius_m and cost_offset_m must be positive, min_gain_cells ≥ 0")
+        if not 0 < self.done_fraction <= 1:
+            raise ValueError("done_fraction must be in (0, 1]")
+
+
+def fused_frontier_mask(observed_low: np.ndarray, fused_low: np.ndarray) -> np.ndarray:
+    """Observed FREE cells with an 8-neighbour UNKNOWN in ``fused_low`` (same 0.20 m grid)."""
+    if observed_low.shape != fused_low.shape:
+        raise ValueError(f"fused map shape {fused_low.shape} differs from the observed map's {observed_low.shape}")
+    unknown = (fused_low == UNKNOWN).astype(np.uint8)
+    near = cv2.dilate(unknown, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return (observed_low == FREE) & near.astype(bool)
+
+
+def visible_unknown(
+    viewpoint_xy_m: np.ndarray, unknown: np.ndarray, blocking: np.ndarray, grid: GridSpec, range_m: float
+) -> np.ndarray:
+    """(K, 2) centres of the ``unknown`` cells (bool on ``grid``) within ``range_m`` of the viewpoint whose line of
+    sight, sampled every half cell, crosses no ``blocking`` cell before it (all around the viewpoint)."""
+    row, col = (int(v) for v in grid.cell_of(*viewpoint_xy_m))
+    r = int(math.ceil(range_m / grid.resolution_m))
+    r0, c0 = max(row - r, 0), max(col - r, 0)
+    window = unknown[r0 : row + r + 1, c0 : col + r + 1]
+    rows, cols = np.nonzero(window)
+    if len(rows) == 0:
+        return np.zeros((0, 2))
+    x, y = grid.center_of(rows + r0, cols + c0)
+    delta = np.stack([x, y], axis=1) - viewpoint_xy_m
+    distance = np.hypot(delta[:, 0], delta[:, 1])
+    near = distance <= range_m
+    delta, distance = delta[near], distance[near]
+    samples = int(math.ceil(2.0 * range_m / grid.resolution_m)) + 2
+    t = np.linspace(0.0, 1.0, samples)[:-1]  # the target cell itself does not block its own view
+    points = viewpoint_xy_m + t[None, :, None] * delta[:, None, :]  # (K, S, 2)
+    prow, pcol = grid.cell_of(points[..., 0], points[..., 1])
+    prow = np.clip(prow, 0, grid.shape[0] - 1)
+    pcol = np.clip(pcol, 0, grid.shape[1] - 1)
+    clear = ~blocking[prow, pcol].any(axis=1)
+    return viewpoint_xy_m + delta[clear]
+
+
+class PredictiveFrontier(GoalPlanner):
+    """Information-gain frontier exploration on the fused map (see the module docstring)."""
+
+    def __init__(self, config: PredictiveConfig = PredictiveConfig(), table: ActionTable | None = None) -> None:
+        super().__init__(config.planner, table)
+        self.predictive = config
+        self._fused: np.ndarray | None = None  # this step's fused 0.20 m map
+
+    def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
+        """The fused frontier (less the dropped targets), or the observed one when the fused map has none."""
+        self._fused = maps.low if fused_low is None else fused_low
+        dropped = self.dropped(maps)
+        frontier = fused_frontier_mask(maps.low, self._fused) & ~dropped
+        if not frontier.any():
+            frontier = frontier_mask(maps.low) & ~dropped
+        return View(maps, pose, frontier, self.config)
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        if not view.frontier.any():
+            return None
+        graph = view.graph
+        start = graph.node_at(*pose[:2])
+        if start < 0:
+            return None
+        cost, predecessors = graph.search([start])
+        cost = cost[0]
+        low_grid = view.maps.low_grid
+        fused = self._fused if self._fused is not None else view.maps.low
+        unknown = fused == UNKNOWN
+        blocking = fused == OCCUPIED
+        best: tuple[float, int, np.ndarray, np.ndarray] | None = None  # (score, node, cluster cells, seen xy)
+        fallback: tuple[float, int, np.ndarray, np.ndarray] | None = None
+        for cells in frontier_clusters(view.frontier, low_grid, self.predictive.cluster_max_radius_m):
+            mask = np.zeros(view.frontier.shape, dtype=bool)
+            mask.flat[cells] = True
+            candidates = goal_candidates(view, mask, self.config.goal_radius_m)
+            candidates = candidates[np.isfinite(cost[candidates])]
+            if len(candidates) == 0:
+                continue
+            node = int(candidates[np.argmin(cost[candidates])])
+            seen = visible_unknown(
+                graph.node_xy_m([node])[0], unknown, blocking, low_grid, self.predictive.sensor.range_m
+            )
+            path_m = float(cost[node])
+            option = (len(seen) / (path_m + self.predictive.cost_offset_m), node, cells, seen)
+            if len(seen) >= self.predictive.min_gain_cells:
+                if best is None or option[0] > best[0]:
+                    best = option
+            elif fallback is None or path_m < float(cost[fallback[1]]):
+                fallback = option
+        chosen = best if best is not None else fallback
+        if chosen is None:
+            return None
+        _, node, cells, seen = chosen
+        path = graph.path_xy_m(predecessors[0], node)
+        if len(seen):
+            look = seen.mean(axis=0) - path[-1]
+        else:
+            cx, cy = low_grid.center_of(*np.divmod(cells, low_grid.shape[1]))
+            look = np.array([cx.mean(), cy.mean()]) - path[-1]
+        yaw = math.atan2(float(look[1]), float(look[0]))
+        return Goal(path, yaw, cells, done_fraction=self.predictive.done_fraction)
