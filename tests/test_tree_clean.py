@@ -36,6 +36,12 @@ def test_new_untracked_and_modified_files_are_reported(checkout: Path) -> None:
     assert new_entries(before, porcelain(checkout)) == [" M tracked.txt", "?? sub/stray.json"]
 
 
+def test_python_source_edits_are_not_the_suites(checkout: Path) -> None:
+    before = porcelain(checkout)
+    (checkout / "module.py").write_text("x = 1\n")
+    assert new_entries(before, porcelain(checkout)) == []
+
+
 def test_ignored_folders_and_profiles_are_not_reported(checkout: Path) -> None:
     before = porcelain(checkout)
     (checkout / "runs").mkdir()
