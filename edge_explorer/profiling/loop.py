@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from edge_explorer.backends.card import CARD_FILE, load_card
-from edge_explorer.runtime.cli import thread_cpu_s
 from edge_explorer.runtime.daemon import (
     STAGES,
     CoverageTruth,
@@ -44,6 +43,7 @@ from edge_explorer.runtime.daemon import (
     choose_models,
 )
 from edge_explorer.runtime.depth_sources import DepthFrame, DepthSource, Recorder
+from edge_explorer.runtime.flight import thread_cpu_s
 from edge_explorer.sim.camera import DepthIntrinsics
 from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
 

@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from edge_explorer.runtime.cli import RunOptions
+from edge_explorer.runtime.options import RunOptions
 
 ACCEPTANCE_TIME_LIMIT_S = 1200.0  # exploration time per flight unless --time-limit-s says otherwise
 DEFAULT_COMPARE = Path(__file__).resolve().parents[2] / "docs" / "bench" / "bundled.json"

@@ -1,0 +1,174 @@
+"""What one flight leaves behind: ``summary.json`` (the run summary) and ``summary.png`` (the run's picture), and
+the one-line summary printed at the end of ``edge-explorer run``."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from edge_explorer.runtime.options import RunOptions
+
+
+def run_summary(
+    options: RunOptions,
+    profile: Any,
+    models: Any,
+    raster: Any,
+    start: tuple[float, float, float] | None,
+    noise_seed: int,
+    report: Any,
+    collisions: int | None,
+    vehicle_cpu_s: float,
+    memory_mb: dict[str, Any],
+    daemon: Any,
+) -> dict[str, Any]:
+    """The run summary (``summary.json``): the flight's setup, the daemon's report and the process's CPU and memory."""
+    simulated = options.source == "sim"
+    daemon_cpu_s = report.process_cpu_s - vehicle_cpu_s - (report.source_cpu_s if simulated else 0.0)
+    stages = {name: vars(s) for name, s in report.stages.items()}
+    decision = report.stages.get("decision")
+    decision_cpu = report.stages.get("decision_cpu")
+    return {
+        "format": "edge-explorer/run-summary",
+        "command": "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None,
+        "plan": None if raster is None else raster.name,
+        "source": options.source,
+        "connect": options.connect or "simulated vehicle (loopback UDP)",
+        "profile": profile.name,
+        "seed": options.seed,
+        "noise_seed": noise_seed,
+        "start_pose": start,
+        "planner": report.planner,
+        "models": list(models.notes),
+        "backends": {
+            "policy": None if models.policy is None else models.policy.model.backend.name,
+            "predictor": None if models.predictor is None else models.predictor.model.backend.name,
+        },
+        "ending": report.ending,
+        "coverage": report.coverage,
+        "correct_coverage": report.correct_coverage,
+        "f1": report.f1,
+        "path_length_m": report.path_length_m,
+        "path_at_goal_m": report.path_at_goal_m,
+        "coverage_goal": daemon.config.coverage_goal,
+        "collisions": collisions,
+        "returned_home": report.returned_home,
+        "exploration_s": report.exploration_s,
+        "decisions": report.decisions,
+        "waypoint_sources": report.waypoint_sources,
+        "frames_fused": report.frames_fused,
+        "frames_dropped": report.frames_dropped,
+        "holds": report.holds,
+        "decision_latency_ms": None if decision is None else {"p50": decision.p50_ms, "p95": decision.p95_ms},
+        "decision_cpu_ms": None if decision_cpu is None else {"p50": decision_cpu.p50_ms, "p95": decision_cpu.p95_ms},
+        "stages_ms": stages,
+        "cpu": {
+            "daemon_percent_of_one_core": 100 * daemon_cpu_s / report.wall_s,
+            "process_percent_of_one_core": 100 * report.process_cpu_s / report.wall_s,
+            "excluded_s": {
+                "sim_vehicle_thread": vehicle_cpu_s,
+                "depth_source": report.source_cpu_s if simulated else 0.0,
+            },
+            "depth_rate_hz": profile.rates_hz.depth,
+            "load_average_1min": os.getloadavg()[0],
+        },
+        **memory_mb,  # peak RSS (the kernel's high-water mark) and the RSS at the end, split by resident_memory_mb
+        "wall_s": report.wall_s,
+        "timeline": report.timeline,
+        "path_xy_m": report.path_xy_m,
+    }
+
+
+def write_summary(out: Path, summary: dict[str, Any], daemon: Any, raster: Any) -> None:
+    """``summary.json`` and ``summary.png`` in ``out``."""
+    from edge_explorer.cli import write_json
+
+    write_json(out / "summary.json", summary)
+    draw_run(out / "summary.png", summary, daemon.view, raster, daemon.home_xy_m)
+
+
+def print_summary(s: dict[str, Any]) -> None:
+    """The run's one-line summary on stdout."""
+    pct = lambda v: "–" if v is None else f"{100 * v:.1f} %"  # noqa: E731
+    latency = s["decision_latency_ms"] or {"p50": math.nan, "p95": math.nan}
+    at_goal = "–" if s["path_at_goal_m"] is None else f"{s['path_at_goal_m']:.1f} m"
+    print(
+        f"run: {s['plan'] or 'no plan'}, {s['planner']} planner, ended by {s['ending']}; coverage {pct(s['coverage'])} "
+        f"(correct {pct(s['correct_coverage'])}), path {s['path_length_m']:.1f} m "
+        f"(at {pct(s['coverage_goal'])}: {at_goal}), "
+        f"collisions {s['collisions']}, decisions {s['decisions']}, decision latency p50 {latency['p50']:.1f} ms "
+        f"p95 {latency['p95']:.1f} ms, CPU {s['cpu']['daemon_percent_of_one_core']:.1f} % of one core "
+        f"(process {s['cpu']['process_percent_of_one_core']:.1f} %), peak RSS {s['peak_rss_mb']:.0f} MB"
+        + _rss_split(s.get("rss_at_end_mb", {})),
+        flush=True,
+    )
+
+
+def _rss_split(rss_mb: dict[str, float]) -> str:
+    if "anon" not in rss_mb or "file" not in rss_mb:
+        return ""
+    return f" (at the end {rss_mb['anon']:.0f} MB allocated + {rss_mb['file']:.0f} MB of mapped library pages)"
+
+
+def draw_run(path: Path, summary: dict[str, Any], view: Any, raster: Any, home_xy: tuple[float, float] | None) -> None:
+    """The run's picture: observed 0.05 m map and path over the true plan; beside it the thresholded prediction.
+
+    ``view`` is the last decision's maps (None when the run ended before its first decision: plan and path only).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from edge_explorer.world.grid import FREE, OCCUPIED
+
+    if view is None:
+        panels = [("no decision was taken: plan and path only", None, None)]
+    else:
+        panels = [("observed map (0.05 m) and path", view.high, view.high_grid)]
+    if view is not None and view.thresholded is not None:
+        panels.append(("observed ∪ thresholded prediction (0.20 m)", view.thresholded, view.low_grid))
+    fig, axes = plt.subplots(1, len(panels), figsize=(7 * len(panels), 5), squeeze=False)
+    path_xy = np.asarray(summary["path_xy_m"], dtype=float).reshape(-1, 2)
+    for ax, (title, codes, grid) in zip(axes[0], panels, strict=True):
+        if raster is not None:
+            g = raster.grid
+            extent = (g.origin_xy[0], g.origin_xy[0] + g.size_xy_m[0], g.origin_xy[1], g.origin_xy[1] + g.size_xy_m[1])
+            truth = np.where(raster.occupied, 0.55, np.where(raster.interior, 0.93, 1.0))
+            ax.imshow(truth, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+        if codes is not None:
+            rgba = np.zeros((*codes.shape, 4))
+            rgba[codes == FREE] = (0.55, 0.75, 1.0, 0.55)
+            rgba[codes == OCCUPIED] = (0.05, 0.05, 0.05, 1.0)
+            x0, y0 = grid.origin_xy
+            ax.imshow(
+                rgba,
+                origin="lower",
+                extent=(x0, x0 + grid.size_xy_m[0], y0, y0 + grid.size_xy_m[1]),
+                interpolation="nearest",
+            )
+        if len(path_xy):
+            ax.plot(path_xy[:, 0], path_xy[:, 1], "-", color="tab:red", lw=1.2)
+            ax.plot(*path_xy[-1], "o", color="tab:red", ms=5)
+        if home_xy is not None:
+            ax.plot(*home_xy, "s", color="tab:green", ms=6, label="home")
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        if raster is not None:
+            ax.set_xlim(extent[0], extent[1])
+            ax.set_ylim(extent[2], extent[3])
+    pct = lambda v: "–" if v is None else f"{100 * v:.1f} %"  # noqa: E731
+    fig.suptitle(
+        f"{summary['plan'] or 'flight'} · {summary['planner']} · {summary['ending']} · coverage "
+        f"{pct(summary['coverage'])} (correct {pct(summary['correct_coverage'])}) · path "
+        f"{summary['path_length_m']:.1f} m · collisions {summary['collisions']}",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
