@@ -12,8 +12,10 @@ cluster the goal is the planning-graph node within ``goal_radius_m`` of it that 
 Dijkstra search from the vehicle serves every cluster). Its *gain* is the number of 0.20 m cells that are UNKNOWN in
 the fused map — unobserved and not confidently predicted — within sensor range of the goal with a line of sight
 that crosses no fused OCCUPIED cell (all around: the vehicle turns at the goal to face them). The cluster with the
-best ``gain / (path_m + cost_offset_m)`` is chosen; clusters whose gain is below ``min_gain_cells`` are flown only
-when nothing better is left. The goal faces the centre of the unknown cells it would see.
+best ``gain^γ / (path_m + cost_offset_m)`` is chosen (γ = ``gain_exponent``); clusters whose gain is below
+``min_gain_cells`` are flown only when nothing better is left, and when no fused frontier is reachable
+the nearest observed frontier is. The goal faces the centre of the unknown cells it
+would see.
 
 Paths, following, replanning and failure handling are the shared :class:`~edge_explorer.plan.frontier.GoalPlanner`
 loop: paths run only through *observed* free space at the robot's clearance, so a prediction never makes a cell
@@ -30,7 +32,15 @@ import numpy as np
 
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import Pose
-from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, frontier_mask, goal_candidates
+from edge_explorer.plan.frontier import (
+    Goal,
+    GoalPlanner,
+    PlannerConfig,
+    View,
+    frontier_mask,
+    goal_candidates,
+    nearest_frontier_goal,
+)
 from edge_explorer.plan.fuel import frontier_clusters
 from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.sensor import SensorConfig
@@ -44,13 +54,19 @@ class PredictiveConfig:
     planner: PlannerConfig = PlannerConfig()
     sensor: SensorConfig = SensorConfig()
     cluster_max_radius_m: float = 1.0
-    cost_offset_m: float = 2.0  # gain / (path + offset): keeps a goal under the vehicle from scoring infinitely
+    cost_offset_m: float = 4.0  # gain^γ / (path + offset): keeps a goal under the vehicle from scoring infinitely
+    gain_exponent: float = 0.5  # γ: 0 flies to the nearest fused frontier worth a look, 1 to the most gain per metre
     min_gain_cells: int = 4  # clusters revealing fewer unknown cells wait until nothing better is left
     done_fraction: float = 0.8  # a target cluster is done when this share of its cells is no fused frontier
 
     def __post_init__(self) -> None:
-        if self.cluster_max_radius_m <= 0 or self.cost_offset_m <= 0 or self.min_gain_cells < 0:
-            raise ValueError("cluster_max_radius_m and cost_offset_m must be positive, min_gain_cells ≥ 0")
+        if (
+            self.cluster_max_radius_m <= 0
+            or self.cost_offset_m <= 0
+            or self.min_gain_cells < 0
+            or self.gain_exponent < 0
+        ):
+            raise ValueError("cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent ≥ 0")
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")
 
@@ -135,15 +151,17 @@ class PredictiveFrontier(GoalPlanner):
                 graph.node_xy_m([node])[0], unknown, blocking, low_grid, self.predictive.sensor.range_m
             )
             path_m = float(cost[node])
-            option = (len(seen) / (path_m + self.predictive.cost_offset_m), node, cells, seen)
+            score = len(seen) ** self.predictive.gain_exponent / (path_m + self.predictive.cost_offset_m)
+            option = (score, node, cells, seen)
             if len(seen) >= self.predictive.min_gain_cells:
                 if best is None or option[0] > best[0]:
                     best = option
             elif fallback is None or path_m < float(cost[fallback[1]]):
                 fallback = option
         chosen = best if best is not None else fallback
-        if chosen is None:
-            return None
+        if chosen is None:  # no fused frontier reachable: the observed one may still be
+            observed = frontier_mask(view.maps.low) & ~self.dropped(view.maps)
+            return nearest_frontier_goal(view, pose, observed, self.config.goal_radius_m)
         _, node, cells, seen = chosen
         path = graph.path_xy_m(predecessors[0], node)
         if len(seen):
