@@ -36,9 +36,11 @@ def test_new_untracked_and_modified_files_are_reported(checkout: Path) -> None:
     assert new_entries(before, porcelain(checkout)) == [" M tracked.txt", "?? sub/stray.json"]
 
 
-def test_python_source_edits_are_not_the_suites(checkout: Path) -> None:
+def test_source_edits_are_not_the_suites(checkout: Path) -> None:
     before = porcelain(checkout)
     (checkout / "module.py").write_text("x = 1\n")
+    (checkout / "edge_explorer" / "learn" / "configs").mkdir(parents=True)
+    (checkout / "edge_explorer" / "learn" / "configs" / "new.toml").write_text("")
     assert new_entries(before, porcelain(checkout)) == []
 
 

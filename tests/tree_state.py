@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+SOURCE_FOLDERS = ("edge_explorer/", "tests/")
+
 
 def porcelain(root: Path) -> frozenset[str] | None:
     """The lines of ``git status --porcelain`` (untracked files one by one) for ``root``; None outside a checkout."""
@@ -25,6 +27,11 @@ def porcelain(root: Path) -> frozenset[str] | None:
 def new_entries(before: frozenset[str], after: frozenset[str]) -> list[str]:
     """The status lines present after and not before (what was written into the tree outside ignored folders).
 
-    Python source is left out: tests write data, reports, models, logs and profiles, never ``.py`` files, whereas in
-    a checkout shared by several engineers someone edits source while the suite runs."""
-    return sorted(line for line in after - before if not line.rstrip('"').endswith(".py"))
+    The source folders and Python files are left out: tests write data, reports, models, logs and profiles into
+    the working directory or the data folders, never source, whereas in a checkout shared by several engineers
+    someone edits source (modules, their configs) while the suite runs."""
+    return sorted(line for line in after - before if not _is_source(line[3:].strip('"')))
+
+
+def _is_source(path: str) -> bool:
+    return path.endswith(".py") or path.startswith(SOURCE_FOLDERS)
