@@ -1,0 +1,87 @@
+"""Which shipped models a run flies (:func:`choose_models`): the DRL policy when asked for or flight-ready, the
+predictor when it loads, each on the device profile's backend order, and the log lines that say why."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from edge_explorer.backends.card import CARD_FILE
+from edge_explorer.backends.chain import load_model
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.plan.policy import PolicyRuntime
+from edge_explorer.predict.predictor import PredictorRuntime
+
+
+class ModelSetupError(EdgeExplorerError):
+    """The models the user asked for cannot be used."""
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """The models a run uses, and the log lines that say why."""
+
+    policy: PolicyRuntime | None
+    predictor: PredictorRuntime | None
+    notes: tuple[str, ...]
+
+
+def _flight_ready(card: Path) -> tuple[bool, str]:
+    """(ready, why) from a policy card's ``flight_ready`` record; a card without one is not ready."""
+    try:
+        record = json.loads(card.read_text()).get("flight_ready")
+    except (OSError, ValueError, AttributeError) as exc:
+        return False, f"{card} is unreadable ({exc})"
+    if not isinstance(record, dict) or not isinstance(record.get("ready"), bool):
+        return False, f"{card} records no flight_ready evaluation"
+    return record["ready"], str(record.get("why", ""))
+
+
+def choose_models(
+    models_dir: Path,
+    planner: str,
+    backend_order: tuple[str, ...],
+    precision: str = "int8",
+    num_threads: int = 1,
+    model_orders: Mapping[str, tuple[str, ...]] | None = None,
+) -> ModelChoice:
+    """Load the shipped models the run can use (see DESIGN.md §8 and the module docstring).
+
+    ``planner``: ``drl`` needs ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
+    when it is missing or cannot be loaded; ``auto`` uses the policy only when its card says it is flight-ready
+    (``flight_ready.ready``: the building evaluation of these weights passed, see
+    :func:`edge_explorer.learn.policy_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
+    why; ``frontier`` never loads the policy. The predictor (``models_dir/predictor/card.json``)
+    is used when it loads; otherwise the run goes on without it (coverage = observed) and says why.
+    ``model_orders`` (the device profile's per-model orders) replaces ``backend_order`` for the models it names.
+    """
+
+    def load(name: str, wrapper: type) -> tuple[object | None, str]:
+        """(the wrapped model, its backend report) or (None, why not)."""
+        card = models_dir / name / CARD_FILE
+        if not card.is_file():
+            return None, f"no {name} model: {card} is missing"
+        try:
+            order = (model_orders or {}).get(name, backend_order)
+            model = wrapper(load_model(card, order, precision, num_threads))
+        except EdgeExplorerError as exc:
+            return None, str(exc)
+        return model, model.model.report
+
+    notes: list[str] = []
+    policy = None
+    policy_card = models_dir / "policy" / CARD_FILE
+    if planner == "frontier":
+        notes.append("planner: frontier (asked for)")
+    elif planner == "auto" and policy_card.is_file() and not (ready := _flight_ready(policy_card))[0]:
+        notes.append(f"planner: frontier (the DRL policy is not flight-ready: {ready[1]}; --planner drl flies it)")
+    else:
+        policy, said = load("policy", PolicyRuntime)
+        if policy is None and planner == "drl":
+            raise ModelSetupError(f"--planner drl: {said}")
+        notes.append(f"planner: drl ({said})" if policy else f"planner: frontier (no usable DRL policy: {said})")
+    predictor, said = load("predictor", PredictorRuntime)
+    notes.append(f"predictor: {said}" if predictor else f"predictor: none, coverage counts observed cells ({said})")
+    return ModelChoice(policy, predictor, tuple(notes))

@@ -1,0 +1,237 @@
+"""What a run measures and reports: the stage timings (:data:`STAGES`, :class:`StageTimings`, reused by the
+profiling report), the progress line (:class:`Progress`), the coverage against the plan (:class:`CoverageTruth`),
+the latest decision's maps (:class:`DecisionView`) and the run report (:class:`RunReport`), and the daemon's part
+that keeps their figures (:class:`RunRecord`: decisions, frames, holds, path, coverage timeline)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from edge_explorer.mapping.metrics import MapMetrics, map_metrics
+from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.mapping.projection import align_to_grid
+from edge_explorer.runtime.mavlink_link import Pose as Odometry
+from edge_explorer.world.grid import LOW_RES_M, GridSpec
+from edge_explorer.world.raster import PlanRaster
+
+# Stage names of :class:`StageTimings`. "predictor": its ego window (pad + shift, unshift) and the network; "ego": the
+# policy observation (rotate, crop, inflate); "planner": the Nearest Frontier planner or the way home;
+# "decision": the whole frame-in → waypoint-out latency of a decision (the triggering frame's fusion included);
+# "decision_cpu": the CPU time the loop's thread spent on it (all of its work runs on that thread), which does not
+# grow when other processes compete for the cores — the wall-clock latency does.
+STAGES: tuple[str, ...] = (
+    "fuse",
+    "project",
+    "ego",
+    "predictor",
+    "thresholding",
+    "coverage",
+    "policy",
+    "planner",
+    "waypoint_trajectory",
+    "mavlink_io",
+    "decision",
+    "decision_cpu",
+)
+
+
+@dataclass(frozen=True)
+class StageStats:
+    """Latency percentiles of one stage, milliseconds."""
+
+    count: int
+    mean_ms: float
+    p50_ms: float
+    p95_ms: float
+    p99_ms: float
+    max_ms: float
+
+
+class StageTimings:
+    """Wall-clock durations per stage (:data:`STAGES`) of one run; thread-safe to add to."""
+
+    def __init__(self) -> None:
+        self._seconds: dict[str, list[float]] = {stage: [] for stage in STAGES}
+
+    def add(self, stage: str, seconds: float) -> None:
+        self._seconds[stage].append(seconds)
+
+    @contextmanager
+    def timed(self, stage: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._seconds[stage].append(time.perf_counter() - start)
+
+    def samples_ms(self, stage: str) -> np.ndarray:
+        return 1e3 * np.asarray(self._seconds[stage], dtype=np.float64)
+
+    def stats(self) -> dict[str, StageStats]:
+        """Percentiles of every stage that ran at least once."""
+        out = {}
+        for stage in STAGES:
+            ms = self.samples_ms(stage)
+            if len(ms):
+                p50, p95, p99 = np.percentile(ms, [50, 95, 99])
+                out[stage] = StageStats(len(ms), float(ms.mean()), float(p50), float(p95), float(p99), float(ms.max()))
+        return out
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a progress line shows."""
+
+    elapsed_s: float
+    phase: str
+    coverage: float | None
+    correct_coverage: float | None
+    path_length_m: float
+    decisions: int
+    decision_p95_ms: float | None
+    holding: str | None  # why the daemon holds position, None while it flies
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """How a run went: the figures the run summary, the acceptance bench and the profiling report read."""
+
+    ending: str  # coverage goal | time limit | explored | interrupted (…) | pilot took over (…) | replay finished
+    planner: str  # "drl" or "frontier"
+    predictor: bool
+    coverage: float | None  # None without a plan to measure against
+    correct_coverage: float | None
+    f1: float | None
+    path_length_m: float  # odometry positions at the decisions, like the simulator's per-step path
+    path_at_goal_m: float | None  # path length when coverage first reached the goal
+    exploration_s: float | None
+    returned_home: bool
+    decisions: int
+    waypoint_sources: dict[str, int]  # policy / frontier / hover / home / hold
+    frames_fused: int
+    frames_dropped: dict[str, int]  # per reason
+    holds: list[dict[str, Any]]  # {"t_s", "reason", "duration_s"}
+    wall_s: float
+    process_cpu_s: float
+    source_cpu_s: float  # CPU time spent producing frames inside the loop (the camera renderer in simulation)
+    stages: dict[str, StageStats]
+    timeline: list[tuple[float, float | None, float | None, float]]  # (t_s, coverage, correct, path_m)
+    path_xy_m: list[tuple[float, float]]
+
+    def to_json(self) -> dict[str, Any]:
+        doc = asdict(self)
+        doc["stages"] = {k: asdict(v) for k, v in self.stages.items()}
+        return doc
+
+
+class CoverageTruth:
+    """The plan's ground truth at 0.20 m, to measure coverage (DESIGN.md §7) of maps on any nesting grid."""
+
+    def __init__(self, raster: PlanRaster) -> None:
+        low = raster.coarsened(LOW_RES_M)
+        self.grid = low.grid
+        self.truth = low.truth_codes()
+        self.interior = low.interior
+
+    def metrics(self, observed: np.ndarray, grid: GridSpec, thresholded: np.ndarray | None) -> MapMetrics:
+        observed = align_to_grid(observed, grid, self.grid)
+        thres = None if thresholded is None else align_to_grid(thresholded, grid, self.grid)
+        return map_metrics(observed, self.truth, self.interior, thres)
+
+
+@dataclass
+class DecisionView:
+    """The maps of the latest decision (for the run summary's picture)."""
+
+    high: np.ndarray
+    high_grid: GridSpec
+    low: np.ndarray
+    low_grid: GridSpec
+    thresholded: np.ndarray | None  # observed ∪ thresholded prediction, when a predictor runs
+
+
+class RunRecord:
+    """The daemon's run record: counts (decisions and their waypoint sources, frames fused and dropped), holds,
+    the path and the coverage timeline; the progress line and the run report are built from it. Reads the daemon's
+    ``config``, ``timings``, ``truth``, phase and exploration times."""
+
+    def _init_record(self) -> None:
+        self._decisions = 0
+        self._sources: dict[str, int] = {}
+        self._frames_fused = 0
+        self._frames_dropped: dict[str, int] = {}
+        self._holds: list[dict[str, Any]] = []
+        self._metrics: MapMetrics | None = None
+        self._path: list[tuple[float, float]] = []
+        self._path_length_m = 0.0
+        self._path_at_goal_m: float | None = None
+        self._timeline: list[tuple[float, float | None, float | None, float]] = []
+        self._source_cpu_s = 0.0
+        self.view: DecisionView | None = None
+
+    def _record_progress(
+        self, now: float, odometry: Odometry, maps: ObservedMaps, thresholded: np.ndarray | None
+    ) -> None:
+        """Coverage against the plan (if known) and the path, once per decision."""
+        xy = (odometry.x_m, odometry.y_m)
+        if self._path and self._phase in ("exploring", "returning"):
+            self._path_length_m += math.dist(self._path[-1], xy)
+        self._path.append(xy)
+        coverage = correct = None
+        if self.truth is not None:
+            with self.timings.timed("coverage"):
+                self._metrics = self.truth.metrics(maps.low, maps.low_grid, thresholded)
+            coverage, correct = self._metrics.coverage, self._metrics.correct_coverage
+            if self._path_at_goal_m is None and coverage >= self.config.coverage_goal:
+                self._path_at_goal_m = self._path_length_m
+        self._timeline.append((now - self._t0_s, coverage, correct, self._path_length_m))
+
+    def _progress(self, now: float) -> Progress:
+        decision = self.timings.stats().get("decision")
+        m = self._metrics
+        return Progress(
+            elapsed_s=now - self._t0_s,
+            phase=self._phase,
+            coverage=None if m is None else m.coverage,
+            correct_coverage=None if m is None else m.correct_coverage,
+            path_length_m=self._path_length_m,
+            decisions=self._decisions,
+            decision_p95_ms=None if decision is None else decision.p95_ms,
+            holding=self._hold_reason,
+        )
+
+    def _report(self, wall_s: float, cpu_s: float) -> RunReport:
+        m = self._metrics
+        exploration_s = None
+        if self._explore_start_s is not None:
+            exploration_s = (self._explore_end_s or time.monotonic()) - self._explore_start_s
+        return RunReport(
+            ending=self._ending or "not started",
+            planner=self.planner_name,
+            predictor=self.predictor is not None,
+            coverage=None if m is None else m.coverage,
+            correct_coverage=None if m is None else m.correct_coverage,
+            f1=None if m is None else m.f1,
+            path_length_m=self._path_length_m,
+            path_at_goal_m=self._path_at_goal_m,
+            exploration_s=exploration_s,
+            returned_home=self._phase in ("home", "done") and self.config.return_home,
+            decisions=self._decisions,
+            waypoint_sources=dict(self._sources),
+            frames_fused=self._frames_fused,
+            frames_dropped=dict(self._frames_dropped),
+            holds=list(self._holds),
+            wall_s=wall_s,
+            process_cpu_s=cpu_s,
+            source_cpu_s=self._source_cpu_s,
+            stages=self.timings.stats(),
+            timeline=list(self._timeline),
+            path_xy_m=list(self._path),
+        )
