@@ -388,6 +388,17 @@ def goal_candidates(view: View, frontier: np.ndarray, goal_radius_m: float) -> n
     return nodes[nodes >= 0]
 
 
+def cluster_handover(view: View, pose: Pose, goal: Goal, goal_radius_m: float) -> Goal | None:
+    """After a goal at a frontier *cluster* (``done_fraction`` < 1) was reached without showing enough of it: the
+    nearest of the cluster's cells that are still frontier, as a single-cell goal (whose own failure drops it);
+    ``None`` for a single-cell goal or when none of the cluster's cells is reachable."""
+    if goal.done_fraction >= 1.0:
+        return None
+    remaining = np.zeros(view.frontier.shape, dtype=bool)
+    remaining.flat[goal.target_cells] = True
+    return nearest_frontier_goal(view, pose, remaining & view.frontier, goal_radius_m)
+
+
 def retreat_goal(view: View, pose: Pose, stuck: Goal) -> Goal | None:
     """Back-off goal for a vehicle stuck on the way to ``stuck``: the graph node with the most clearance among
     those :data:`_RETREAT_MIN_M` to :data:`_RETREAT_MAX_M` away along the graph (the nearest among equals), facing

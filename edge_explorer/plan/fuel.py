@@ -37,7 +37,14 @@ from ortools.constraint_solver import pywrapcp, routing_enums_pb2
 from scipy import ndimage
 
 from edge_explorer.plan.follow import Pose
-from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, nearest_frontier_goal
+from edge_explorer.plan.frontier import (
+    Goal,
+    GoalPlanner,
+    PlannerConfig,
+    View,
+    cluster_handover,
+    nearest_frontier_goal,
+)
 from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.sensor import SensorConfig
 from edge_explorer.world.grid import OCCUPIED, GridSpec
@@ -173,13 +180,8 @@ class FuelPlanner(GoalPlanner):
     def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
         """A viewpoint that did not show its cluster hands over to the nearest of the cluster's frontier cells
         (whose own failure drops it); the nearest-frontier goals fail as in the base class."""
-        if goal.done_fraction < 1.0:  # a viewpoint goal
-            remaining = np.zeros(view.frontier.shape, dtype=bool)
-            remaining.flat[goal.target_cells] = True
-            nearest = nearest_frontier_goal(view, pose, remaining & view.frontier, self.config.goal_radius_m)
-            if nearest is not None:
-                return nearest
-        return super().on_failure(goal, view, pose)
+        handover = cluster_handover(view, pose, goal, self.config.goal_radius_m)
+        return handover if handover is not None else super().on_failure(goal, view, pose)
 
     def travel_time_s(self, path_m: np.ndarray, yaw_from_rad: np.ndarray, yaw_to_rad: np.ndarray) -> np.ndarray:
         """FUEL's lower bound of the time between two poses: max(path / speed, heading change / yaw rate)."""

@@ -14,8 +14,8 @@ the fused map — unobserved and not confidently predicted — within sensor ran
 that crosses no fused OCCUPIED cell (all around: the vehicle turns at the goal to face them). The cluster with the
 best ``gain^γ / (path_m + cost_offset_m)`` is chosen (γ = ``gain_exponent``); clusters whose gain is below
 ``min_gain_cells`` are flown only when nothing better is left, and when no fused frontier is reachable
-the nearest observed frontier is. The goal faces the centre of the unknown cells it
-would see.
+the nearest observed frontier is. The goal faces the cluster's centre; a cluster reached without showing most of
+it hands over to its nearest remaining cell (:func:`~edge_explorer.plan.frontier.cluster_handover`), as FUEL does.
 
 Paths, following, replanning and failure handling are the shared :class:`~edge_explorer.plan.frontier.GoalPlanner`
 loop: paths run only through *observed* free space at the robot's clearance, so a prediction never makes a cell
@@ -37,6 +37,7 @@ from edge_explorer.plan.frontier import (
     GoalPlanner,
     PlannerConfig,
     View,
+    cluster_handover,
     frontier_mask,
     goal_candidates,
     nearest_frontier_goal,
@@ -162,12 +163,14 @@ class PredictiveFrontier(GoalPlanner):
         if chosen is None:  # no fused frontier reachable: the observed one may still be
             observed = frontier_mask(view.maps.low) & ~self.dropped(view.maps)
             return nearest_frontier_goal(view, pose, observed, self.config.goal_radius_m)
-        _, node, cells, seen = chosen
+        _, node, cells, _ = chosen
         path = graph.path_xy_m(predecessors[0], node)
-        if len(seen):
-            look = seen.mean(axis=0) - path[-1]
-        else:
-            cx, cy = low_grid.center_of(*np.divmod(cells, low_grid.shape[1]))
-            look = np.array([cx.mean(), cy.mean()]) - path[-1]
-        yaw = math.atan2(float(look[1]), float(look[0]))
+        cx, cy = low_grid.center_of(*np.divmod(cells, low_grid.shape[1]))
+        yaw = math.atan2(float(cy.mean()) - path[-1, 1], float(cx.mean()) - path[-1, 0])
         return Goal(path, yaw, cells, done_fraction=self.predictive.done_fraction)
+
+    def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
+        """A cluster reached without showing most of it hands over to its nearest remaining frontier cell (whose
+        own failure drops it), as in the FUEL-style planner; single-cell goals fail as in the base class."""
+        handover = cluster_handover(view, pose, goal, self.config.goal_radius_m)
+        return handover if handover is not None else super().on_failure(goal, view, pose)
