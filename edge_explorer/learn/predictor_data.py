@@ -323,7 +323,7 @@ class SampleConfig:
     min_coverage: float = 0.02
     seed: int = 0
     limits: FlightLimits = DEFAULT_LIMITS
-    noise_free_fraction: float = 0.0  # share of flights whose sensor has no occupied-cell noise (the rest: DEFAULT_SENSOR)
+    noise_free_fraction: float = 0.0  # share of flights scanned without occupied-cell noise (the rest: DEFAULT_SENSOR)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.noise_free_fraction <= 1.0:

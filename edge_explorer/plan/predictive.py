@@ -115,6 +115,18 @@ class PredictiveFrontier(GoalPlanner):
         super().__init__(config.planner, table)
         self.predictive = config
         self._fused: np.ndarray | None = None  # this step's fused 0.20 m map
+        self.last_action = 0  # the motion the vehicle carries into this step (a learned planner observes it)
+
+    def act(
+        self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
+    ) -> int | None:
+        self.last_action = previous_action
+        return super().act(maps, pose, previous_action, fused_low)
+
+    @property
+    def fused(self) -> np.ndarray | None:
+        """The fused 0.20 m map of the current step (``None`` before the first)."""
+        return self._fused
 
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """The fused frontier (less the dropped targets), or the observed one when the fused map has none."""

@@ -1,0 +1,233 @@
+"""Demonstrations for the goal policy: decisions labelled with the predictive expert's goal choice.
+
+:class:`LabellingPlanner` flies one episode and, at every decision of the planner loop, records the observation,
+the mask of valid goal cells and the cell of the goal the expert (:class:`~edge_explorer.plan.predictive.
+PredictiveFrontier`) would choose on the same view. Without a policy it flies the expert's goals (behaviour-cloning
+data); with one it flies the policy's goals while still recording the expert's labels — DAgger's aggregation step,
+which shows the policy the states its own mistakes lead to.
+
+Episodes run in the training simulator with the predictor on (phase 2 of the paper: the fused map is what the
+policy sees), from the plans of the generated dataset (``data/plans``), until coverage and correct coverage reach
+95 % or the step cap. Shards are ``.npz`` files (plain arrays, no pickles), one per block of plans, written in
+parallel and resumably (a ``.json`` marker is written last): ``high``/``thres`` int8 (N, 237, 237),
+``last_action`` int8 (N,), ``mask`` packed bits (N, 436), ``label`` int32 (N,).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.plan.follow import Pose
+from edge_explorer.plan.frontier import Goal, View
+from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
+from edge_explorer.plan.goal_policy import GoalPolicy, choose_cell, expert_label, goal_at_cell, goal_decision
+from edge_explorer.plan.predictive import PredictiveFrontier
+from edge_explorer.sim.dynamics import ActionTable
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.world.raster import PlanRaster
+
+DEMO_FORMAT = "edge-explorer/goal-demos"
+_CELLS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
+
+
+class LabellingPlanner(PredictiveFrontier):
+    """The expert's loop; the expert's or a policy's goals; every decision recorded with the expert's label."""
+
+    def __init__(self, policy: GoalPolicy | None = None, table: ActionTable | None = None) -> None:
+        super().__init__(table=table)
+        self.policy = policy
+        self.records: list[tuple[np.ndarray, np.ndarray, int, np.ndarray, int]] = []
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        expert = super().select_goal(view, pose)
+        fused = self.fused if self.fused is not None else view.maps.low
+        decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
+        label = None if expert is None else expert_label(expert, pose, view, decision.options)
+        if label is not None:
+            o = decision.observation
+            self.records.append((o["high"], o["thres"], self.last_action, decision.options.flat_mask(), label))
+        if self.policy is None or not decision.options.mask.any():
+            return expert
+        return goal_at_cell(view, decision, choose_cell(self.policy, decision))
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """How demonstration episodes are flown."""
+
+    max_steps: int = 1500
+    coverage_goal: float = 0.95
+    seed: int = 0
+
+
+def fly_demo(
+    raster: PlanRaster, predictor: Predictor | None, seed: int, config: DemoConfig, policy: GoalPolicy | None = None
+) -> list[tuple[np.ndarray, np.ndarray, int, np.ndarray, int]]:
+    """One labelled episode on ``raster`` from a random start (see the module docstring)."""
+    env = ExplorationEnv([raster], EnvConfig(coverage_goal=1.0, max_steps=config.max_steps), predictor=predictor)
+    planner = LabellingPlanner(policy, env.table)
+    planner.reset()
+    _, info = env.reset(seed=seed)
+    previous = 0
+    for _ in range(config.max_steps):
+        if info["coverage"] >= config.coverage_goal and info["correct_coverage"] >= config.coverage_goal:
+            break
+        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
+        if action is None:
+            break
+        _, _, _, _, info = env.step(action)
+        previous = 0 if info["collided"] else action
+    return planner.records
+
+
+def write_demos(path: Path, records: Sequence[tuple[np.ndarray, np.ndarray, int, np.ndarray, int]]) -> None:
+    """One shard of records (see the module docstring for the arrays)."""
+    size = (0, 0)
+    if records:
+        size = records[0][0].shape
+    arrays = {
+        "high": np.stack([r[0] for r in records]) if records else np.zeros((0, *size), np.int8),
+        "thres": np.stack([r[1] for r in records]) if records else np.zeros((0, *size), np.int8),
+        "last_action": np.array([r[2] for r in records], dtype=np.int8),
+        "mask": np.packbits(np.stack([r[3] for r in records]), axis=1) if records else np.zeros((0, 436), np.uint8),
+        "label": np.array([r[4] for r in records], dtype=np.int32),
+    }
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(path)
+
+
+@dataclass(frozen=True)
+class Demos:
+    """Loaded shards: arrays as in the module docstring, the mask unpacked to bool (N, 3481)."""
+
+    high: np.ndarray
+    thres: np.ndarray
+    last_action: np.ndarray
+    mask: np.ndarray
+    label: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.label)
+
+
+def load_demos(folder: str | Path) -> Demos:
+    """Every finished shard (with its marker) of ``folder``."""
+    paths = sorted(p for p in Path(folder).glob("shard-*.npz") if p.with_suffix(".json").exists())
+    if not paths:
+        raise EdgeExplorerError(f"{folder}: no finished demonstration shards; run `edge-explorer train goal-demos`")
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("high", "thres", "last_action", "mask", "label")}
+    for path in paths:
+        with np.load(path) as data:
+            for key in parts:
+                parts[key].append(data[key])
+    mask = np.unpackbits(np.concatenate(parts["mask"]), axis=1, count=_CELLS).astype(bool)
+    return Demos(
+        np.concatenate(parts["high"]),
+        np.concatenate(parts["thres"]),
+        np.concatenate(parts["last_action"]),
+        mask,
+        np.concatenate(parts["label"]),
+    )
+
+
+@dataclass(frozen=True)
+class DemoJob:
+    plans: str  # plan dataset folder
+    split: str
+    first: int  # plan indices [first, stop) of the split
+    stop: int
+    out: Path
+    predictor: str | None
+    policy: str | None
+    config: DemoConfig
+
+    @property
+    def marker(self) -> Path:
+        return self.out.with_suffix(".json")
+
+
+def _plans(plans_dir: str, split: str, first: int, stop: int) -> list[PlanRaster]:
+    from itertools import islice
+
+    from edge_explorer.world.catalog import plan_to_raster
+    from edge_explorer.world.dataset import iter_shard_plans
+
+    shards = sorted((Path(plans_dir) / split).glob("shard-*.jsonl.gz"))
+    return [plan_to_raster(p) for p in islice(iter_shard_plans(shards), first, stop)]
+
+
+def _run_job(job: DemoJob) -> dict:
+    import cv2
+
+    from edge_explorer.bench.explore import load_predictor
+
+    cv2.setNumThreads(1)
+    t0 = time.perf_counter()
+    predictor = load_predictor(job.predictor) if job.predictor else None
+    policy = None
+    if job.policy:
+        from edge_explorer.learn.goal_net import TorchGoalPolicy
+
+        policy = TorchGoalPolicy.from_file(job.policy)
+    records = []
+    for k, raster in enumerate(_plans(job.plans, job.split, job.first, job.stop)):
+        seed = int(np.random.SeedSequence([job.config.seed, job.first + k]).generate_state(1)[0])
+        records += fly_demo(raster, predictor, seed, job.config, policy)
+    job.out.parent.mkdir(parents=True, exist_ok=True)
+    write_demos(job.out, records)
+    marker = {"format": DEMO_FORMAT, "decisions": len(records), "seconds": time.perf_counter() - t0, **asdict(job)}
+    marker["out"] = str(job.out)
+    marker["config"] = asdict(job.config)
+    job.marker.write_text(json.dumps(marker, default=str))
+    return marker
+
+
+def generate_demos(
+    plans_dir: str,
+    out_dir: Path,
+    split: str,
+    plan_range: tuple[int, int],
+    predictor: str | None,
+    policy: str | None = None,
+    plans_per_shard: int = 10,
+    workers: int = 1,
+    config: DemoConfig = DemoConfig(),
+) -> int:
+    """Write demonstration shards for plans ``plan_range`` of ``split``, resumably; returns the decisions written
+    this call (shards already finished are skipped)."""
+    from tqdm import tqdm
+
+    first, stop = plan_range
+    jobs = [
+        DemoJob(
+            plans_dir,
+            split,
+            a,
+            min(a + plans_per_shard, stop),
+            out_dir / f"shard-{a:06d}.npz",
+            predictor,
+            policy,
+            config,
+        )
+        for a in range(first, stop, plans_per_shard)
+    ]
+    todo = [j for j in jobs if not j.marker.exists()]
+    decisions = 0
+    with tqdm(total=sum(j.stop - j.first for j in todo), unit="plan", desc="goal demos") as bar:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(_run_job, j): j for j in todo}
+            for future in as_completed(futures):
+                decisions += future.result()["decisions"]
+                job = futures[future]
+                bar.update(job.stop - job.first)
+                bar.set_postfix(decisions=decisions)
+    return decisions

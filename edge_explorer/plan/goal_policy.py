@@ -1,0 +1,126 @@
+"""The learned goal planner (benchmark method ``drl``): a policy scores the goal cells, the shared loop flies the goal.
+
+At each decision — when the planner loop of :class:`~edge_explorer.plan.frontier.GoalPlanner` asks for a goal: at
+the start, when the target is seen or predicted, when a goal failed — :func:`goal_decision` builds
+
+* the paper's observation (DESIGN.md §5): heading-up windows of the inflated 0.05 m observed map and of the
+  inflated fused 0.20 m map (observed ∪ thresholded prediction), and the one-hot last motion, exactly as
+  :func:`~edge_explorer.mapping.ego.observation_from_maps` makes them for every stage;
+* the goal options (:mod:`edge_explorer.plan.goal_grid`): the 59 × 59 heading-up goal cells, valid where a
+  reachable planning node lies within ``goal_radius_m`` of a fused frontier cell.
+
+A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:`GoalPolicyPlanner` takes the best
+valid cell and flies to that cell's goal node along the planning graph (observed free space at the robot's
+clearance: a collision-free path by construction), facing the frontier cells near it. When no cell is valid the
+predictive expert's fallbacks apply (observed frontier, then done). The expert
+(:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
+same decisions (:func:`expert_label`) for behaviour cloning.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_explorer.mapping.ego import observation_from_maps
+from edge_explorer.plan.follow import Pose
+from edge_explorer.plan.frontier import Goal, View, goal_candidates
+from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions, ego_goal_cells, goal_options
+from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
+from edge_explorer.sim.dynamics import ActionTable
+
+GoalPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]  # observation → (59, 59) goal-cell scores
+_TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
+_EXPERT_DEFAULTS = PredictiveConfig()
+
+
+@dataclass(frozen=True)
+class GoalDecision:
+    """Everything one decision needs: the observation, the valid goals and the search they came from."""
+
+    observation: dict[str, np.ndarray]
+    options: GoalOptions
+    predecessors: np.ndarray  # Dijkstra predecessors from the vehicle's node (one row)
+
+
+def goal_decision(
+    view: View, pose: Pose, fused_low: np.ndarray, last_action: int, goal_radius_m: float
+) -> GoalDecision:
+    """The observation and goal options of ``view`` (whose frontier is the fused one) at ``pose``."""
+    maps = view.maps
+    high_cell = tuple(int(v) for v in maps.high_grid.cell_of(*pose[:2]))
+    low_cell = tuple(int(v) for v in maps.low_grid.cell_of(*pose[:2]))
+    observation = observation_from_maps(
+        maps.high,
+        fused_low,
+        maps.high_grid.resolution_m,
+        maps.low_grid.resolution_m,
+        high_cell,
+        low_cell,
+        pose[2],
+        last_action,
+    )
+    graph = view.graph
+    start = graph.node_at(*pose[:2])
+    size = GOAL_GRID_CELLS
+    if start < 0 or not view.frontier.any():
+        empty = GoalOptions(np.full((size, size), -1, np.int64), np.full((size, size), np.inf))
+        return GoalDecision(observation, empty, np.full(len(graph.cells), -9999, np.int32))
+    cost, predecessors = graph.search([start])
+    candidates = goal_candidates(view, view.frontier, goal_radius_m)
+    options = goal_options(
+        candidates, graph.node_xy_m(candidates), cost[0], pose, maps.low_grid.origin_xy, maps.low_grid.resolution_m
+    )
+    return GoalDecision(observation, options, predecessors[0])
+
+
+def expert_label(goal: Goal, pose: Pose, view: View, options: GoalOptions) -> int | None:
+    """Flat goal cell of the expert's ``goal`` (where its path ends), or ``None`` if that cell is not a valid
+    option (the expert fell back to the observed frontier, or its goal lies outside the goal grid)."""
+    low = view.maps.low_grid
+    row, col = ego_goal_cells(goal.path_xy_m[-1:], pose, low.origin_xy, low.resolution_m)[0]
+    if not (0 <= row < GOAL_GRID_CELLS and 0 <= col < GOAL_GRID_CELLS) or not options.mask[row, col]:
+        return None
+    return int(row * GOAL_GRID_CELLS + col)
+
+
+def choose_cell(policy: GoalPolicy, decision: GoalDecision) -> int:
+    """The policy's best valid flat goal cell (the decision must have one)."""
+    scores = np.asarray(policy(decision.observation), dtype=np.float64).reshape(decision.options.mask.shape)
+    return int(np.argmax(np.where(decision.options.mask, scores, -np.inf)))
+
+
+def goal_at_cell(view: View, decision: GoalDecision, cell: int) -> Goal:
+    """The goal of a valid flat goal cell: the path to its node, facing the frontier cells within
+    :data:`_TARGET_RADIUS_M` of the node (its targets, done when 80 % of them are no frontier)."""
+    node = int(decision.options.node.flat[cell])
+    if node < 0:
+        raise ValueError(f"goal cell {cell} is masked: not a valid goal")
+    path = view.graph.path_xy_m(decision.predecessors, node)
+    low = view.maps.low_grid
+    frontier = np.flatnonzero(view.frontier)
+    x, y = low.center_of(*np.divmod(frontier, low.shape[1]))
+    distance = np.hypot(x - path[-1, 0], y - path[-1, 1])
+    near = distance <= max(_TARGET_RADIUS_M, float(distance.min()))
+    yaw = math.atan2(float(y[near].mean()) - path[-1, 1], float(x[near].mean()) - path[-1, 0])
+    return Goal(path, yaw, frontier[near], done_fraction=0.8)
+
+
+class GoalPolicyPlanner(PredictiveFrontier):
+    """The learned goal planner: the expert's view and loop, the policy's choice of goal."""
+
+    def __init__(
+        self, policy: GoalPolicy, config: PredictiveConfig = _EXPERT_DEFAULTS, table: ActionTable | None = None
+    ) -> None:
+        super().__init__(config, table)
+        self.policy = policy
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        fused = self.fused if self.fused is not None else view.maps.low
+        decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
+        if not decision.options.mask.any():
+            return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
+        return goal_at_cell(view, decision, choose_cell(self.policy, decision))
