@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     data.add_argument("--seed", type=int, default=0)
     data.add_argument(
         "--noise-free-fraction",
-        type=float,
+        type=_probability,
         default=0.0,
         help="share of flights scanned with a noise-free sensor (default 0: every flight has the training noise)",
     )
@@ -75,6 +75,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     pol.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     pol.add_argument("--max-minutes", type=positive_int, help="stop PPO after N minutes of this call (resume later)")
     pol.set_defaults(func=_train_policy)
+
+    demos = tsub.add_parser(
+        "goal-demos",
+        help="fly the predictive expert (or, with --policy, a goal policy: DAgger) and record labelled decisions",
+        description="Expert-labelled goal decisions on the generated plans, for the goal policy (resumable shards).",
+    )
+    demos.add_argument("--plans", default="data/plans", help="plan dataset (default data/plans)")
+    demos.add_argument("--out", type=Path, required=True, help="shard folder")
+    demos.add_argument("--split", choices=("train", "val"), default="train")
+    demos.add_argument("--first", type=int, default=0, help="first plan index of the split (default 0)")
+    demos.add_argument("--count", type=positive_int, required=True, help="plans to fly")
+    demos.add_argument("--predictor", default="models/predictor", help="predictor reference ('' = none: phase 1)")
+    demos.add_argument("--policy", default=None, help="a goal policy .safetensors to fly instead of the expert")
+    demos.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    demos.set_defaults(func=_goal_demos)
+
+    bc = tsub.add_parser(
+        "goal-bc",
+        help="behaviour-clone the goal policy on expert demonstrations (checkpoints, --resume)",
+        description="Train the goal policy network on expert-labelled decisions (masked cross-entropy).",
+    )
+    bc.add_argument("--train-demos", default="data/goal_demos/train")
+    bc.add_argument("--val-demos", default="data/goal_demos/val")
+    bc.add_argument("--steps", type=positive_int, default=4000, help="total optimizer steps (default 4000)")
+    bc.add_argument("--batch-size", type=positive_int, default=32)
+    bc.add_argument("--threads", type=positive_int, default=1)
+    bc.add_argument("--out", type=Path, required=True, help="run folder")
+    bc.add_argument("--resume", action="store_true", help="continue the run in OUT")
+    bc.set_defaults(func=_goal_bc)
 
     ship = tsub.add_parser(
         "ship-predictor",
@@ -155,6 +184,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     curves.add_argument("--plot", type=Path, required=True, help="the figure (PNG)")
     curves.add_argument("--json", type=Path, required=True, help="the figures per run (JSON)")
     curves.set_defaults(func=_policy_curves)
+
+
+def _goal_demos(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.goal_demos import generate_demos
+
+    decisions = generate_demos(
+        args.plans,
+        args.out,
+        args.split,
+        (args.first, args.first + args.count),
+        args.predictor or None,
+        args.policy,
+        workers=args.workers,
+    )
+    print(f"{decisions} labelled decisions written to {args.out}")
+    return 0
+
+
+def _goal_bc(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.train_goal_bc import BCConfig, train
+
+    config = BCConfig(
+        train_demos=args.train_demos,
+        val_demos=args.val_demos,
+        total_steps=args.steps,
+        batch_size=args.batch_size,
+        threads=args.threads,
+    )
+    state = train(config, args.out, resume=args.resume)
+    print(f"step {state['step']}: best val agreement with the expert {state['best_agreement']:.3f} → {args.out}")
+    return 0
 
 
 def _predictor_data(args: argparse.Namespace) -> int:
