@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -83,11 +84,26 @@ def run_summary(
 
 
 def write_summary(out: Path, summary: dict[str, Any], daemon: Any, raster: Any) -> None:
-    """``summary.json`` and ``summary.png`` in ``out``."""
+    """``summary.json`` and ``summary.png`` in ``out``.
+
+    The picture is drawn in a forked child process: matplotlib and its figure (~65 MB resident) never load into the
+    daemon's process, whose peak RSS is the flight's (a drone's daemon would not draw at all)."""
     from edge_explorer.cli import write_json
 
     write_json(out / "summary.json", summary)
-    draw_run(out / "summary.png", summary, daemon.view, raster, daemon.home_xy_m)
+    in_forked_child(draw_run, out / "summary.png", summary, daemon.view, raster, daemon.home_xy_m)
+
+
+def in_forked_child(function: Callable[..., object], *args: Any) -> None:
+    """Run ``function(*args)`` in a forked child process and wait for it; the arguments are inherited, not copied.
+    Raises :class:`RuntimeError` when the child fails (its traceback is on stderr)."""
+    import multiprocessing
+
+    child = multiprocessing.get_context("fork").Process(target=function, args=args, name=function.__name__)
+    child.start()
+    child.join()
+    if child.exitcode != 0:
+        raise RuntimeError(f"{function.__name__} failed in its child process (exit code {child.exitcode})")
 
 
 def print_summary(s: dict[str, Any]) -> None:
