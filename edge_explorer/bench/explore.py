@@ -176,21 +176,35 @@ def load_predictor(reference: str) -> Predictor:
 Policy = Callable[[dict[str, np.ndarray]], int]  # the simulator's observation → one of the six action ids
 
 
-def load_policy(reference: str) -> Policy:
-    """The policy named by ``reference``: a model folder (``models/policy``) or its ``card.json`` — the exported
-    artifacts through the backend chain, as the daemon runs them — or a ``.safetensors`` actor of
-    :func:`~edge_explorer.learn.policy_net.load_policy_module` (torch, ``train`` extra). The action is the argmax
-    of the logits, the policy's deterministic choice."""
+@dataclass(frozen=True)
+class GoalPolicyRef:
+    """A learned goal policy (:mod:`edge_explorer.plan.goal_policy`): ``drl`` runs fly it through the planner loop."""
+
+    scores: Callable[[dict[str, np.ndarray]], np.ndarray]
+
+
+def load_policy(reference: str) -> Policy | GoalPolicyRef:
+    """The policy named by ``reference``.
+
+    * a ``.safetensors`` goal policy of :func:`~edge_explorer.learn.goal_net.save_goal_net` (torch, ``train``
+      extra): the learned goal planner, flown by the shared planner loop;
+    * a ``.safetensors`` actor of :func:`~edge_explorer.learn.policy_net.load_policy_module`, or a model folder
+      (``models/policy``) or its ``card.json`` — the primitive-action policy through the backend chain, as the daemon
+      runs it; the action is the argmax of the logits. (This family leaves when the goal policy ships.)
+    """
     path = Path(reference)
     if path.suffix == ".safetensors":
         if not path.is_file():
             raise EdgeExplorerError(f"--policy {reference}: no such file")
         try:
-            from edge_explorer.learn.policy_net import TorchPolicy
+            from edge_explorer.learn.goal_net import GOAL_NET_FORMAT, TorchGoalPolicy
+            from edge_explorer.learn.policy_net import TorchPolicy, read_metadata
         except ImportError as exc:
             raise EdgeExplorerError(
                 f"--policy {reference}: torch weights need the train extra (pip install -e '.[train]'): {exc}"
             ) from exc
+        if read_metadata(path).get("format") == GOAL_NET_FORMAT:
+            return GoalPolicyRef(TorchGoalPolicy.from_file(path))
         return TorchPolicy.from_file(path)
     if path.is_dir() or path.name == CARD_FILE:
         from edge_explorer.backends.chain import load_model
@@ -202,11 +216,15 @@ def load_policy(reference: str) -> Policy:
 
 # ---- one run ------------------------------------------------------------------------------------------------------
 def run_episode(
-    raster: PlanRaster, spec: RunSpec, predictor: Predictor | None = None, policy: Policy | None = None
+    raster: PlanRaster,
+    spec: RunSpec,
+    predictor: Predictor | None = None,
+    policy: Policy | GoalPolicyRef | None = None,
 ) -> dict[str, Any]:
     """Fly one run and return its record: the spec, how it ended, and the per-step curves.
 
-    A planner method decides from the observed map; the ``drl`` methods call ``policy`` on the observation."""
+    A planner method decides from the observed (and fused) map; the ``drl`` methods fly a learned goal policy through
+    the same planner loop, or call a primitive-action ``policy`` on the observation."""
     method = spec.method.removesuffix(PRED_SUFFIX)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps)  # the run, not the env, decides when to stop
     env = ExplorationEnv([raster], config, predictor=predictor)
@@ -214,8 +232,13 @@ def run_episode(
         if policy is None:
             raise EdgeExplorerError(f"{spec.method} needs a policy")
         planner = None
+        if isinstance(policy, GoalPolicyRef):  # the learned goal planner: the planner loop flies its goals
+            from edge_explorer.plan.goal_policy import GoalPolicyPlanner
+
+            planner = GoalPolicyPlanner(policy.scores, table=env.table)
     else:
         planner = PLANNERS[method](env.table)
+    if planner is not None:
         planner.reset()
     observation, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
     coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
@@ -308,7 +331,7 @@ def plan_specs(
 
 
 _WORKER_PREDICTORS: dict[str, Predictor] = {}
-_WORKER_POLICIES: dict[str, Policy] = {}
+_WORKER_POLICIES: dict[str, Policy | GoalPolicyRef] = {}
 
 
 def _run_task(task: tuple[PlanRaster, RunSpec]) -> dict[str, Any]:

@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from edge_explorer.bench import explore as bench
 from edge_explorer.learn.goal_demos import DemoConfig, fly_demo, load_demos, write_demos
-from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, TorchGoalPolicy, load_goal_net, save_goal_net
+from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
 from edge_explorer.learn.train_goal_bc import BCConfig, batch_tensors, train
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import GoalPolicyPlanner
-from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 
@@ -89,21 +88,14 @@ def test_resume_equals_an_uninterrupted_run(demo_dirs, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_cloned_policy_flies_the_two_rooms(demo_dirs, rooms, tmp_path):
+def test_a_cloned_policy_flies_the_two_rooms_in_the_benchmark(demo_dirs, rooms, tmp_path):
     config = BCConfig(
         train_demos=str(demo_dirs / "train"), val_demos=str(demo_dirs / "val"), batch_size=4, total_steps=30
     )
     train(config, tmp_path / "bc", net=TINY_NET)
-    planner = GoalPolicyPlanner(TorchGoalPolicy.from_file(tmp_path / "bc" / "best.safetensors"))
-    env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=400))
-    _, info = env.reset(seed=3, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
-    planner.table = env.table
-    previous = 0
-    for _ in range(400):
-        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
-        if action is None or info["coverage"] >= 0.95:
-            break
-        _, _, _, _, info = env.step(action)
-        assert not info["collided"]  # goals are reachable by construction, paths through observed free space
-        previous = action
-    assert info["coverage"] >= 0.95
+    policy = bench.load_policy(str(tmp_path / "bc" / "best.safetensors"))
+    assert isinstance(policy, bench.GoalPolicyRef)
+    spec = bench.RunSpec("drl", rooms.name, 0, 3, (1.0, 1.5, -math.pi / 2), 0.95, 400, None, "bc")
+    record = bench.run_episode(rooms, spec, None, policy)
+    assert record["ending"] == "goal" and record["collisions"] == 0  # goals reachable by construction
+    assert record["path_at_coverage_m"] is not None
