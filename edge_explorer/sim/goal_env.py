@@ -1,0 +1,172 @@
+"""Goal selection as a gymnasium environment: one step per navigation goal (the paper's DRL planner, DESIGN.md §6).
+
+Each step the agent picks one of the 59 × 59 heading-up goal cells (:mod:`edge_explorer.plan.goal_grid`); the
+shared planner loop flies the vehicle there through observed free space with the six motions of the training
+simulator (:class:`~edge_explorer.sim.env.ExplorationEnv`), until the loop asks for the next goal — the target was
+seen or predicted, the goal failed — or the episode ends. Invalid cells are masked (:meth:`GoalEnv.action_masks`,
+the sb3-contrib MaskablePPO convention), so every chosen goal is reachable and a collision can only come from
+motion noise; a masked cell that is chosen anyway is replaced by the valid cell nearest to it (``info
+["goal_replaced"]``).
+
+* observation: the :class:`ExplorationEnv` observation at the decision (``high``, ``thres``, ``last_action``);
+* action: ``Discrete(3481)``, a flat goal cell (row-major);
+* reward: ``ω·[F1(M_thres) after − before] − (metres flown) − l·(collisions)``, the paper's reward per decision with
+  ω, l of the :class:`~edge_explorer.sim.env.EnvConfig`;
+* terminated: coverage and correct coverage reach the goal, or the planner loop has nothing left to explore;
+  truncated: the simulator's step cap.
+
+When no goal cell is valid the predictive expert's fallbacks fly on (nearest observed frontier) without asking the
+agent. :meth:`GoalEnv.expert_action` is the expert's choice at the current decision (DAgger labels, evaluation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from edge_explorer.plan.follow import Pose
+from edge_explorer.plan.frontier import Goal, View
+from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
+from edge_explorer.plan.goal_policy import GoalDecision, expert_label, goal_at_cell, goal_decision
+from edge_explorer.plan.predictive import PredictiveFrontier
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.world.raster import PlanRaster
+
+NUM_GOALS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
+
+
+class _DecisionNeeded(Exception):  # noqa: N818 - a signal, not an error
+    """Raised inside the planner loop when it needs a goal from the agent."""
+
+    def __init__(self, view: View, pose: Pose, decision: GoalDecision) -> None:
+        super().__init__("the planner loop needs a goal")
+        self.view, self.pose, self.decision = view, pose, decision
+
+
+class _AgentGoals(PredictiveFrontier):
+    """The expert's loop with the agent's goals: a pending goal is flown; without one, the loop stops to ask."""
+
+    def __init__(self, env: ExplorationEnv) -> None:
+        super().__init__(table=env.table)
+        self.pending: Goal | None = None
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        if self.pending is not None:
+            goal, self.pending = self.pending, None
+            return goal
+        fused = self.fused if self.fused is not None else view.maps.low
+        decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
+        if not decision.options.mask.any():
+            return super().select_goal(view, pose)  # the expert's fallbacks: nearest observed frontier, or done
+        self._goal = None  # re-entering the loop goes straight to the pending goal
+        raise _DecisionNeeded(view, pose, decision)
+
+    def expert_goal(self, view: View, pose: Pose) -> Goal | None:
+        return super().select_goal(view, pose)
+
+
+class GoalEnv(gym.Env):
+    """One navigation goal per step; see the module docstring."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self, plans: Sequence[PlanRaster], config: EnvConfig | None = None, predictor: Predictor | None = None
+    ) -> None:
+        config = config if config is not None else EnvConfig()
+        self.sim = ExplorationEnv(plans, config, predictor=predictor)
+        self.config = config
+        self.observation_space = self.sim.observation_space
+        self.action_space = spaces.Discrete(NUM_GOALS)
+        self._planner: _AgentGoals | None = None
+        self._pending: _DecisionNeeded | None = None
+        self._info: dict[str, Any] = {}
+        self._previous = 0
+        self._done = False
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        _, self._info = self.sim.reset(seed=seed, options=options)
+        self._planner = _AgentGoals(self.sim)
+        self._planner.reset()
+        self._previous = 0
+        self._done = False
+        _, _, collisions = self._fly()
+        return self._observation(), {**self._info, "collisions": collisions}
+
+    def step(self, action: Any):
+        if self._pending is None:
+            raise gym.error.ResetNeeded("the episode has ended; call reset()")
+        cell = int(action)
+        if not 0 <= cell < NUM_GOALS:
+            raise gym.error.InvalidAction(f"goal cell {cell} is outside 0..{NUM_GOALS - 1}")
+        valid = np.flatnonzero(self._pending.decision.options.mask.ravel())
+        replaced = cell not in valid
+        if replaced:  # a masked goal: fly the valid goal cell nearest to it instead
+            rows, cols = np.divmod(valid, GOAL_GRID_CELLS)
+            row, col = divmod(cell, GOAL_GRID_CELLS)
+            cell = int(valid[np.argmin((rows - row) ** 2 + (cols - col) ** 2)])
+        assert self._planner is not None
+        self._planner.pending = goal_at_cell(self._pending.view, self._pending.decision, cell)
+        f1_before, path_before = self._info["f1"], self._info["path_length_m"]
+        ended, truncated, collisions = self._fly()
+        c = self.config
+        reward = (
+            c.f1_weight * (self._info["f1"] - f1_before)
+            - (self._info["path_length_m"] - path_before)
+            - c.collision_penalty * collisions
+        )
+        info = {**self._info, "collisions": collisions, "goal_replaced": replaced}
+        return self._observation(), float(reward), ended, truncated, info
+
+    def action_masks(self) -> np.ndarray:
+        """bool (3481,): the goal cells the agent may choose now (all False once the episode has ended)."""
+        if self._pending is None:
+            return np.zeros(NUM_GOALS, dtype=bool)
+        return self._pending.decision.options.flat_mask()
+
+    def expert_action(self) -> int | None:
+        """The predictive expert's goal cell at this decision (``None`` if it would fly outside the goal grid)."""
+        if self._pending is None or self._planner is None:
+            return None
+        goal = self._planner.expert_goal(self._pending.view, self._pending.pose)
+        if goal is None:
+            return None
+        return expert_label(goal, self._pending.pose, self._pending.view, self._pending.decision.options)
+
+    def _fly(self) -> tuple[bool, bool, int]:
+        """Fly until the loop needs a goal (sets ``_pending``) or the episode ends: (terminated, truncated,
+        collisions)."""
+        assert self._planner is not None
+        self._pending = None
+        collisions = 0
+        goal = self.config.coverage_goal
+        while True:
+            if self._info["coverage"] >= goal and self._info["correct_coverage"] >= goal:
+                return True, False, collisions
+            if self._info["steps"] >= self.config.max_steps:
+                return False, True, collisions
+            try:
+                action = self._planner.act(self.sim.maps, self.sim.pose, self._previous, self.sim.thresholded_low)
+            except _DecisionNeeded as decision:
+                self._pending = decision
+                return False, False, collisions
+            if action is None:  # nothing left to explore
+                return True, False, collisions
+            _, _, _, _, self._info = self.sim.step(action)
+            collisions += int(self._info["collided"])
+            self._previous = 0 if self._info["collided"] else action
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        if self._pending is not None:
+            return self._pending.decision.observation
+        size = self.observation_space["high"].shape
+        return {
+            "high": np.zeros(size, np.int8),
+            "thres": np.zeros(size, np.int8),
+            "last_action": np.eye(6, dtype=np.float32)[0],
+        }
