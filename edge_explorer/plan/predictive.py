@@ -55,9 +55,11 @@ class PredictiveConfig:
     planner: PlannerConfig = PlannerConfig()
     sensor: SensorConfig = SensorConfig()
     cluster_max_radius_m: float = 1.0
-    cost_offset_m: float = 4.0  # gain^γ / (path + offset): keeps a goal under the vehicle from scoring infinitely
-    gain_exponent: float = 0.5  # γ: 0 flies to the nearest fused frontier worth a look, 1 to the most gain per metre
-    min_gain_cells: int = 4  # clusters revealing fewer unknown cells wait until nothing better is left
+    # score gain^γ / (path + offset). Tuned on 16 val plans (docs/bench/README.md): γ = 0 — the nearest fused
+    # frontier whose view is worth ``min_gain_cells`` — beat γ = 0.25, 0.5 and 1 (gain per metre) there.
+    cost_offset_m: float = 4.0  # keeps a goal under the vehicle from scoring infinitely when γ > 0
+    gain_exponent: float = 0.0  # γ: 0 flies to the nearest fused frontier worth a look, 1 to the most gain per metre
+    min_gain_cells: int = 30  # clusters revealing fewer unknown cells (1.2 m²) wait until nothing better is left
     done_fraction: float = 0.8  # a target cluster is done when this share of its cells is no fused frontier
 
     def __post_init__(self) -> None:
