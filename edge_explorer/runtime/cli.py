@@ -1,4 +1,5 @@
-"""``edge-explorer run``: the on-device daemon, and its acceptance bench (``--plans … --runs N``).
+"""``edge-explorer run``: the on-device daemon, its acceptance bench (``--plans … --runs N``) and its soak
+(``--soak 30m``).
 
 With no arguments it flies the embedded default: bundled building A, the shipped models when present (else the
 Nearest Frontier planner, said in the log), the ``host`` device profile, and the simulated PX4 vehicle with the
@@ -10,10 +11,10 @@ length, collisions, decisions, stage latency percentiles, CPU % of one core, pea
 (the observed map, the prediction if any, and the path over the true plan), ``flight.tlog`` (every MAVLink message
 both ways, readable by ``mavlogdump.py``) and ``daemon.log``.
 
-The flight itself is :func:`edge_explorer.runtime.flight.fly`, the bench :mod:`edge_explorer.runtime.acceptance`;
-this module parses the arguments and hands them over. SIGINT and SIGTERM stop the flight with a hold setpoint,
-write the summary and close the telemetry log (exit code 130 after SIGINT, 0 after SIGTERM: a requested, clean
-shutdown).
+The flight itself is :func:`edge_explorer.runtime.flight.fly`, the bench :mod:`edge_explorer.runtime.acceptance`, the
+soak :mod:`edge_explorer.runtime.soak`; this module parses the arguments and hands them over. SIGINT and SIGTERM stop
+the flight with a hold setpoint, write the summary and close the telemetry log (exit code 130 after SIGINT, 0 after
+SIGTERM: a requested, clean shutdown).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from edge_explorer.runtime.options import MODELS_DIR, RunOptions
+from edge_explorer.runtime.soak import parse_duration
 
 DESCRIPTION = "The on-device exploration daemon: depth + odometry in, MAVLink position setpoints out."
 EXIT_SIGINT = 130
@@ -83,6 +85,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--plans",
         metavar="LIST",
         help="acceptance bench: fly every building of this list (e.g. A,B,C,D) --runs times each, then print the table",
+    )
+    run.add_argument(
+        "--soak",
+        type=parse_duration,
+        metavar="DURATION",
+        help="fly the simulated drone's flights back to back in one process for DURATION (e.g. 30m), reporting RSS "
+        "over time, decisions, holds and collisions (soak.json, soak.png in --out)",
     )
     run.add_argument(
         "--runs", type=_positive(int), default=1, metavar="N", help="with --plans: flights per building (default 1)"
@@ -162,12 +171,20 @@ def _run(args: argparse.Namespace) -> int:
         record_dir=args.record,
         autopilot=args.autopilot,
     )
+    if args.plans is not None and args.soak is not None:
+        raise EdgeExplorerError("--plans runs the acceptance bench, --soak the soak: choose one")
     if args.plans is not None:
         if args.connect is not None or args.source != "sim" or args.record is not None:
             raise EdgeExplorerError("--plans flies the simulated drone: drop --connect, --source and --record")
         from edge_explorer.runtime.acceptance import run_acceptance
 
         return run_acceptance(options, args.plans, args.runs, args.json, args.markdown, args.plot, args.compare)
+    if args.soak is not None:
+        if args.connect is not None or args.source != "sim" or args.record is not None:
+            raise EdgeExplorerError("--soak flies the simulated drone: drop --connect, --source and --record")
+        from edge_explorer.runtime.soak import run_soak
+
+        return run_soak(options, args.soak)
     summary = fly(options)
     print(f"summary: {out / 'summary.json'}, {out / 'summary.png'}")
     return EXIT_SIGINT if summary["ending"] == "interrupted (SIGINT)" else 0
