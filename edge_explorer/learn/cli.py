@@ -105,6 +105,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     bc.add_argument("--resume", action="store_true", help="continue the run in OUT")
     bc.set_defaults(func=_goal_bc)
 
+    ppo = tsub.add_parser(
+        "goal-ppo",
+        help="PPO (MaskablePPO) of the goal policy from its BC weights on the paper's reward (checkpoints, --resume)",
+        description="MaskablePPO on the goal-selection environment; see edge_explorer/learn/train_goal_ppo.py.",
+    )
+    ppo.add_argument("--init", default="", help="GoalNet .safetensors to start from (the BC best.safetensors)")
+    ppo.add_argument("--predictor", default="models/predictor", help="predictor ('' = phase 1: no predictor)")
+    ppo.add_argument("--decisions", type=positive_int, default=20_000, help="total decisions (default 20000)")
+    ppo.add_argument("--envs", type=positive_int, default=2, help="environment worker processes (default 2)")
+    ppo.add_argument("--out", type=Path, required=True, help="run folder")
+    ppo.add_argument("--resume", action="store_true", help="continue the run in OUT")
+    ppo.set_defaults(func=_goal_ppo)
+
     ship = tsub.add_parser(
         "ship-predictor",
         help="copy a run's best weights to models/predictor with card.json (sha256, MACs, metrics, latency)",
@@ -214,6 +227,17 @@ def _goal_bc(args: argparse.Namespace) -> int:
     )
     state = train(config, args.out, resume=args.resume)
     print(f"step {state['step']}: best val agreement with the expert {state['best_agreement']:.3f} → {args.out}")
+    return 0
+
+
+def _goal_ppo(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.train_goal_ppo import PPOConfig, train
+
+    config = PPOConfig(
+        init_weights=args.init, predictor=args.predictor, total_decisions=args.decisions, n_envs=args.envs
+    )
+    decisions = train(config, args.out, resume=args.resume)
+    print(f"{decisions} decisions trained → {args.out} (best.safetensors, val_log.csv)")
     return 0
 
 

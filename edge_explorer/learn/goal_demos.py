@@ -155,7 +155,8 @@ class DemoJob:
         return self.out.with_suffix(".json")
 
 
-def _plans(plans_dir: str, split: str, first: int, stop: int) -> list[PlanRaster]:
+def split_rasters(plans_dir: str, split: str, first: int, stop: int) -> list[PlanRaster]:
+    """Plans [first, stop) of a split of the generated dataset in ``plans_dir``, rasterized at 0.05 m."""
     from itertools import islice
 
     from edge_explorer.world.catalog import plan_to_raster
@@ -179,7 +180,7 @@ def _run_job(job: DemoJob) -> dict:
 
         policy = TorchGoalPolicy.from_file(job.policy)
     records = []
-    for k, raster in enumerate(_plans(job.plans, job.split, job.first, job.stop)):
+    for k, raster in enumerate(split_rasters(job.plans, job.split, job.first, job.stop)):
         seed = int(np.random.SeedSequence([job.config.seed, job.first + k]).generate_state(1)[0])
         records += fly_demo(raster, predictor, seed, job.config, policy)
     job.out.parent.mkdir(parents=True, exist_ok=True)
