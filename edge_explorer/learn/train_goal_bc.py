@@ -155,6 +155,11 @@ def train(
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     if resume:
         state = _load(out, model, optimizer)
+        if state["train_decisions"] != len(train_set):
+            raise EdgeExplorerError(
+                f"{out}: the run trained on {state['train_decisions']} decisions, {config.train_demos} now holds "
+                f"{len(train_set)}; resume with the same demonstrations or start a new run"
+            )
     else:
         state = {"step": 0, "best_agreement": -1.0, "wall_s": 0.0, "train_decisions": len(train_set)}
         (out / "config.json").write_text(json.dumps({"bc": asdict(config), "net": asdict(net)}, indent=1))
