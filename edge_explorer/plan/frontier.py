@@ -36,6 +36,7 @@ from functools import cached_property
 
 import cv2
 import numpy as np
+from scipy import ndimage
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
@@ -60,6 +61,34 @@ def frontier_mask(codes: np.ndarray) -> np.ndarray:
     unknown = (codes == UNKNOWN).astype(np.uint8)
     near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return (codes == FREE) & near_unknown.astype(bool)
+
+
+def frontier_clusters(
+    frontier: np.ndarray, grid: GridSpec, max_radius_m: float, min_cells: int = 1
+) -> list[np.ndarray]:
+    """Flat indices of each cluster of ``frontier`` cells (bool on ``grid``), split as the module docstring says;
+    connected components of fewer than ``min_cells`` cells are left out."""
+    labels, count = ndimage.label(frontier, structure=np.ones((3, 3), dtype=bool))
+    flat_labels = labels.ravel()
+    order = np.argsort(flat_labels, kind="stable")
+    bounds = np.searchsorted(flat_labels[order], np.arange(1, count + 2))
+    clusters: list[np.ndarray] = []
+    for k in range(count):
+        cells = order[bounds[k] : bounds[k + 1]]
+        if len(cells) < min_cells:
+            continue
+        x, y = grid.center_of(*np.divmod(cells, grid.shape[1]))
+        clusters.extend(_split(cells, np.stack([x, y], axis=1), max_radius_m))
+    return clusters
+
+
+def _split(cells: np.ndarray, xy_m: np.ndarray, max_radius_m: float) -> list[np.ndarray]:
+    centred = xy_m - xy_m.mean(axis=0)
+    if len(cells) < 2 or np.hypot(centred[:, 0], centred[:, 1]).max() <= max_radius_m:
+        return [cells]
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    side = centred @ vectors[:, -1] >= 0  # principal axis: the eigenvector of the largest eigenvalue
+    return _split(cells[side], xy_m[side], max_radius_m) + _split(cells[~side], xy_m[~side], max_radius_m)
 
 
 @dataclass(frozen=True)

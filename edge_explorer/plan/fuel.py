@@ -6,9 +6,10 @@ At each replan:
 1. **Frontier clusters**: connected components (8-neighbour) of the 0.20 m frontier cells
    (:func:`~edge_explorer.plan.frontier.frontier_mask`); a cluster with a cell farther than
    ``cluster_max_radius_m`` from its centroid is split in two along its principal axis, recursively
-   (:func:`frontier_clusters`). Components of fewer than ``min_cluster_cells`` cells stay out of the tour, as in
-   FUEL: specks of frontier (a corner the sensor grazed, a gap behind furniture) would otherwise each pull the
-   global tour towards them; they are visited by the nearest-frontier fallback once no large cluster is left.
+   (:func:`~edge_explorer.plan.frontier.frontier_clusters`, shared with the predictive expert). Components of
+   fewer than ``min_cluster_cells`` cells stay out of the tour, as in FUEL: specks of frontier (a corner the
+   sensor grazed, a gap behind furniture) would otherwise each pull the global tour towards them; they are
+   visited by the nearest-frontier fallback once no large cluster is left.
 2. **Viewpoints**: candidates on rings around each cluster's centroid, kept if they are reachable nodes of the
    planning graph. A candidate's coverage is the number of the cluster's cells the planar sensor would see from it
    (within range and field of view, line of sight not crossing an observed OCCUPIED cell — unknown space counts as
@@ -34,7 +35,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from ortools.constraint_solver import pywrapcp, routing_enums_pb2
-from scipy import ndimage
 
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import (
@@ -43,6 +43,7 @@ from edge_explorer.plan.frontier import (
     PlannerConfig,
     View,
     cluster_handover,
+    frontier_clusters,
     nearest_frontier_goal,
 )
 from edge_explorer.sim.dynamics import ActionTable
@@ -83,34 +84,6 @@ class Viewpoints:
     nodes: np.ndarray  # planning-graph node ids
     yaw_rad: np.ndarray
     coverage: np.ndarray  # cluster cells seen
-
-
-def frontier_clusters(
-    frontier: np.ndarray, grid: GridSpec, max_radius_m: float, min_cells: int = 1
-) -> list[np.ndarray]:
-    """Flat indices of each cluster of ``frontier`` cells (bool on ``grid``), split as the module docstring says;
-    connected components of fewer than ``min_cells`` cells are left out."""
-    labels, count = ndimage.label(frontier, structure=np.ones((3, 3), dtype=bool))
-    flat_labels = labels.ravel()
-    order = np.argsort(flat_labels, kind="stable")
-    bounds = np.searchsorted(flat_labels[order], np.arange(1, count + 2))
-    clusters: list[np.ndarray] = []
-    for k in range(count):
-        cells = order[bounds[k] : bounds[k + 1]]
-        if len(cells) < min_cells:
-            continue
-        x, y = grid.center_of(*np.divmod(cells, grid.shape[1]))
-        clusters.extend(_split(cells, np.stack([x, y], axis=1), max_radius_m))
-    return clusters
-
-
-def _split(cells: np.ndarray, xy_m: np.ndarray, max_radius_m: float) -> list[np.ndarray]:
-    centred = xy_m - xy_m.mean(axis=0)
-    if len(cells) < 2 or np.hypot(centred[:, 0], centred[:, 1]).max() <= max_radius_m:
-        return [cells]
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    side = centred @ vectors[:, -1] >= 0  # principal axis: the eigenvector of the largest eigenvalue
-    return _split(cells[side], xy_m[side], max_radius_m) + _split(cells[~side], xy_m[~side], max_radius_m)
 
 
 def visible_counts(

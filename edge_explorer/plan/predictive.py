@@ -7,7 +7,7 @@ flies to a frontier the predictor has already filled in. When no fused frontier 
 rest of the building) the observed frontier takes over, so the flight can still confirm what the predictor was
 unsure of. Without a predictor the fused map is the observed map and this is a gain-scored frontier explorer.
 
-Goals: the fused frontier is cut into clusters (:func:`~edge_explorer.plan.fuel.frontier_clusters`). For each
+Goals: the fused frontier is cut into clusters (:func:`~edge_explorer.plan.frontier.frontier_clusters`). For each
 cluster the goal is the planning-graph node within ``goal_radius_m`` of it that is nearest along the graph (one
 Dijkstra search from the vehicle serves every cluster). Its *gain* is the number of 0.20 m cells that are UNKNOWN in
 the fused map — unobserved and not confidently predicted — within sensor range of the goal with a line of sight
@@ -38,11 +38,11 @@ from edge_explorer.plan.frontier import (
     PlannerConfig,
     View,
     cluster_handover,
+    frontier_clusters,
     frontier_mask,
     goal_candidates,
     nearest_frontier_goal,
 )
-from edge_explorer.plan.fuel import frontier_clusters
 from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.sensor import SensorConfig
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec

@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from edge_explorer.plan.fuel import FuelPlanner, frontier_clusters, open_tour, visible_counts
+from edge_explorer.plan.frontier import frontier_clusters
+from edge_explorer.plan.fuel import FuelPlanner, open_tour, visible_counts
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.sim.sensor import SensorConfig
 from edge_explorer.world.grid import GridSpec

@@ -1,4 +1,4 @@
-"""The predictive expert: fused frontiers, visible gain, and a flight on the fused map (edge_explorer.plan.predictive)."""
+"""The predictive expert: fused frontiers, visible gain, a flight on the fused map (edge_explorer.plan.predictive)."""
 
 import math
 
