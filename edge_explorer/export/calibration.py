@@ -12,6 +12,12 @@ observations are the same on every machine. Its first ``plans`` plans calibrate 
 * **Policy**: :class:`~edge_explorer.sim.env.ExplorationEnv` episodes on the plans (with the recipe's predictor
   filling the thres map, as in phase-2 training), acting with the fp32 policy itself (10 % random actions so the
   episodes do not repeat one path) or uniformly at random; every ``stride``-th observation is recorded.
+* **Goal policy**: :class:`~edge_explorer.sim.goal_env.GoalEnv` episodes (one step per goal decision; the recipe's
+  predictor filling the fused map, as in phase-2 training), choosing with the fp32 network's masked argmax (10 %
+  uniformly random valid goals so episodes differ) or uniformly at random. Every decision is recorded — each
+  follows a whole goal flight, so consecutive ones are not near duplicates — up to ``per_plan`` per plan, with
+  further episodes on the plan (new seeds, at most :data:`GOAL_EPISODES_PER_PLAN`) when one ends early.
+  Held-back decisions keep their valid-goal mask (59 × 59) for the masked-agreement gate.
 
 Observations are feeds: ``{input name: float32 array with a batch of 1}`` in the ONNX (torch) layout.
 """
@@ -19,7 +25,7 @@ Observations are feeds: ``{input name: float32 array with a batch of 1}`` in the
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
@@ -32,6 +38,8 @@ from edge_explorer.predict.encoding import encode_windows
 Feed = dict[str, np.ndarray]
 POLICY_STEP_STRIDE = 8  # record every 8th step of a policy episode: consecutive observations are near duplicates
 POLICY_RANDOM_ACTION_PROB = 0.1
+GOAL_RANDOM_GOAL_PROB = 0.1
+GOAL_EPISODES_PER_PLAN = 3
 
 
 @dataclass(frozen=True)
@@ -47,12 +55,14 @@ class MapSample:
 
 @dataclass(frozen=True)
 class Observations:
-    """Calibration feeds, held-back feeds, and (predictor) the held-back maps behind them."""
+    """Calibration feeds, held-back feeds, and what the gates need besides them: (predictor) the held-back maps,
+    (goal policy) the held-back valid-goal masks."""
 
     calibration: list[Feed]
     held_back: list[Feed]
     maps: list[MapSample]
     description: dict
+    masks: list[np.ndarray] = field(default_factory=list)  # bool (59, 59) per held-back feed
 
 
 def val_rasters(config: CalibrationConfig) -> tuple[list, list]:
@@ -140,6 +150,53 @@ def policy_observations(
     description["step_stride"] = POLICY_STEP_STRIDE
     description["predictor"] = None if config.predictor is None else str(config.predictor)
     return Observations(calibration, held_back, [], description)
+
+
+def goal_observations(
+    config: CalibrationConfig,
+    act: Callable[[dict[str, np.ndarray], np.ndarray], int],
+    predictor: Callable[[np.ndarray], np.ndarray] | None,
+) -> Observations:
+    """Roll the goal env out on the val plans and record every decision with its valid-goal mask; ``act`` maps an
+    observation and its flat mask to a valid flat goal cell (see the module docstring)."""
+    from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
+    from edge_explorer.sim.env import EnvConfig
+    from edge_explorer.sim.goal_env import GoalEnv
+
+    calibration_rasters, held_back_rasters = val_rasters(config)
+    shape = (GOAL_GRID_CELLS, GOAL_GRID_CELLS)
+
+    def rollouts(rasters: list, offset: int, desc: str) -> tuple[list[Feed], list[np.ndarray]]:
+        env = GoalEnv(rasters, EnvConfig(), predictor=predictor)
+        feeds: list[Feed] = []
+        masks: list[np.ndarray] = []
+        for k in tqdm(range(len(rasters)), desc=desc, unit="plan"):
+            rng = np.random.default_rng([config.seed, offset + k])
+            recorded = 0
+            for _ in range(GOAL_EPISODES_PER_PLAN):
+                obs, _ = env.reset(seed=int(rng.integers(2**31)), options={"plan_index": k})
+                mask = env.action_masks()
+                while mask.any() and recorded < config.per_plan:
+                    feeds.append({name: np.asarray(v, dtype=np.float32)[np.newaxis] for name, v in obs.items()})
+                    masks.append(mask.reshape(shape))
+                    recorded += 1
+                    explore = config.explorer == "random" or rng.random() < GOAL_RANDOM_GOAL_PROB
+                    cell = int(rng.choice(np.flatnonzero(mask))) if explore else act(obs, mask)
+                    obs, *_ = env.step(cell)
+                    mask = env.action_masks()  # all False once the episode has ended
+                if recorded >= config.per_plan:
+                    break
+        return feeds, masks
+
+    calibration, _ = rollouts(calibration_rasters, 0, "calibration rollouts")
+    held_back, masks = rollouts(held_back_rasters, len(calibration_rasters), "held-back rollouts")
+    _require(calibration, "calibration", config)
+    _require(held_back, "held-back", config)
+    description = _describe(config, calibration_rasters, held_back_rasters, len(calibration), len(held_back))
+    description["unit"] = "goal decisions of GoalEnv episodes, every decision recorded"
+    description["random_goal_share"] = 1.0 if config.explorer == "random" else GOAL_RANDOM_GOAL_PROB
+    description["predictor"] = None if config.predictor is None else str(config.predictor)
+    return Observations(calibration, held_back, [], description, masks)
 
 
 def _describe(config: CalibrationConfig, cal: list, held: list, n_cal: int, n_held: int) -> dict:

@@ -2,6 +2,10 @@
 
 Exit codes: 0 every gate passed (artifacts and card installed), 1 a gate failed (nothing installed, the previous
 artifacts untouched), 2 bad input (recipe, checkpoint, missing converter environment).
+
+``--all`` skips, with one line each, the recipes whose checkpoint has not been trained yet (e.g. the goal policy
+before its training has produced ``models/goal_policy/goal_policy.safetensors``); ``--recipe`` names one recipe and
+a missing checkpoint is an error.
 """
 
 from __future__ import annotations
@@ -38,6 +42,13 @@ def export_cli(args: argparse.Namespace) -> int:
     if not paths:
         raise EdgeExplorerError(f"no recipes in {RECIPE_DIR}")
     recipes = [load_recipe(p) for p in paths]
+    if args.all:
+        for recipe in recipes:
+            if not recipe.checkpoint.is_file():
+                print(f"== {recipe.name}: skipped, checkpoint {recipe.checkpoint} does not exist (not trained yet)")
+        recipes = [r for r in recipes if r.checkpoint.is_file()]
+        if not recipes:
+            raise EdgeExplorerError(f"no recipe in {RECIPE_DIR} has its checkpoint; train the models first")
     for recipe in recipes:  # every recipe and checkpoint is checked before the first long run
         check_inputs_exist(recipe)
     reports = []

@@ -12,6 +12,10 @@
   (every unobserved cell of the plan's grid, exterior included) and ``interior_cell_agreement`` (all N_M cells of
   M_thres, observed ones included).
 * **Policy** — ``top1_agreement``: the share of held-back observations where both give the same argmax action.
+* **Goal policy** — ``top1_agreement``: the share of held-back decisions where both choose the same goal, each
+  choosing the argmax over that decision's *valid* goal cells only (:func:`masked_argmax`, what the planner flies):
+  a disagreement at a masked cell changes nothing in flight and does not count. Reported beside it, not gated:
+  ``unmasked_top1_agreement`` (argmax over all 59 × 59 cells) and ``mean_valid_cells`` per decision.
 
 Every artifact also reports ``max_abs_diff`` of its raw output against torch.
 """
@@ -92,6 +96,31 @@ def policy_gate(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray]
     if figures["top1_agreement"] < gates["min_top1_agreement"]:
         failures.append(f"top-1 agreement {figures['top1_agreement']:.4f} < {gates['min_top1_agreement']}")
     return GateResult(not failures, figures, f"top-1 agree {figures['top1_agreement']:.2%}", tuple(failures))
+
+
+def masked_argmax(scores: np.ndarray, mask: np.ndarray) -> int:
+    """The flat index of the highest score among the cells where ``mask`` is True (the mask must have one)."""
+    return int(np.argmax(np.where(np.asarray(mask, bool).ravel(), np.asarray(scores).ravel(), -np.inf)))
+
+
+def goal_gate(
+    reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], masks: Sequence[np.ndarray], gates: Mapping
+) -> GateResult:
+    """Masked top-1 goal agreement with fp32 (see the module docstring)."""
+    pairs = list(zip(reference, candidate, masks, strict=True))
+    same = [masked_argmax(r, m) == masked_argmax(c, m) for r, c, m in pairs]
+    figures = {
+        "top1_agreement": float(np.mean(same)),
+        "unmasked_top1_agreement": float(np.mean([int(np.argmax(r)) == int(np.argmax(c)) for r, c, _ in pairs])),
+        "mean_valid_cells": float(np.mean([np.count_nonzero(m) for m in masks])),
+        "max_abs_diff": _max_abs_diff(reference, candidate),
+        "observations": len(same),
+    }
+    failures = []
+    if figures["top1_agreement"] < gates["min_top1_agreement"]:
+        failures.append(f"masked top-1 goal agreement {figures['top1_agreement']:.4f} < {gates['min_top1_agreement']}")
+    summary = f"goal agree {figures['top1_agreement']:.2%} of {len(same)}"
+    return GateResult(not failures, figures, summary, tuple(failures))
 
 
 def parity_gate(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], tolerance: float) -> GateResult:

@@ -11,6 +11,14 @@
   The TFLite converter starts from the float-code graph instead (:attr:`ExportNetwork.tflite_source`), whose ReLU
   encoding maps onto the Edge TPU (it has no EQUAL, SELECT or CAST) and whose int8 TFLite inputs take the codes as
   they are. Both encodings give the same 0/1 channels.
+* ``goal_policy``: :func:`edge_explorer.learn.goal_net.load_goal_net` wrapped in :class:`GoalLogits` — inputs
+  ``high``, ``thres`` [1, 237, 237] (cell codes as float32) and ``last_action`` [1, 6] (one-hot), output ``logits``
+  [1, 59, 59], the spatial action map of :mod:`edge_explorer.plan.goal_grid`; the chosen goal is the argmax over
+  the valid cells (:func:`~edge_explorer.plan.goal_policy.choose_cell`). The value head is PPO's critic only and
+  is left out of the graph. Every format, ONNX and TFLite, takes the float codes and encodes them with the net's
+  own ReLUs (:func:`~edge_explorer.learn.goal_net.encode_codes`): an int8-code ONNX input like the primitive
+  policy's would need a second copy of :meth:`GoalNet.forward <edge_explorer.learn.goal_net.GoalNet.forward>`
+  around a comparison encoding, for a gain of one QuantizeLinear over two 237 × 237 inputs.
 
 The batch is fixed at 1 (what the daemon runs, and what full-integer TFLite needs).
 """
@@ -29,6 +37,7 @@ import torch
 from edge_explorer.export.calibration import Feed
 from edge_explorer.export.recipe import Recipe, RecipeError
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS, PREDICTOR_WINDOW_CELLS
+from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GOAL_POOL
 from edge_explorer.predict.encoding import INPUT_CHANNELS
 from edge_explorer.predict.thresholding import ThresholdConfig
 from edge_explorer.sim.dynamics import TABLE_VERSION
@@ -42,13 +51,29 @@ POLICY_ENCODING = (
     "UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2; int8 in ONNX, quantized int8 in TFLite), vehicle cell (118, 118); "
     "last_action = one-hot of 6"
 )
+GOAL_POLICY_ENCODING = (
+    "edge_explorer.mapping.ego.encode_observation: high / thres = heading-up 237x237 code windows (FREE -1, "
+    "UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2; float32 in ONNX, quantized int8 in TFLite), vehicle cell (118, 118); "
+    "last_action = one-hot of 6 (float32)"
+)
+GOAL_GRID_CONTRACT = json.dumps(
+    {
+        "cells": GOAL_GRID_CELLS,
+        "pool": GOAL_POOL,
+        "layout": "heading-up ego goal cell (i, j) covers observation rows [pool*i, pool*i + pool) and columns "
+        "[pool*j, pool*j + pool) (edge_explorer.plan.goal_grid)",
+        "choice": "goal = argmax of the logits over the valid goal cells only (masked argmax, "
+        "edge_explorer.plan.goal_policy.choose_cell)",
+    }
+)
+ENCODINGS = {"predictor": PREDICTOR_ENCODING, "policy": POLICY_ENCODING, "goal_policy": GOAL_POLICY_ENCODING}
 
 
 @dataclass(frozen=True)
 class ExportNetwork:
     """A torch module in eval mode and what the exported graph must look like."""
 
-    kind: str  # predictor | policy
+    kind: str  # predictor | policy | goal_policy
     module: torch.nn.Module
     inputs: dict[str, tuple[int, ...]]  # name → shape, ONNX (torch) layout, batch 1
     outputs: tuple[str, ...]
@@ -79,6 +104,19 @@ class Int8CodesPolicy(torch.nn.Module):
         from edge_explorer.learn.policy_net import encode_codes_by_comparison
 
         return self.actor.logits_from_channels(encode_codes_by_comparison(high, thres), last_action)
+
+
+class GoalLogits(torch.nn.Module):
+    """A :class:`~edge_explorer.learn.goal_net.GoalNet` with its goal logits [B, 59, 59] as the only output (the
+    value head is training-only; the exporter drops the computation nothing reads)."""
+
+    def __init__(self, net: torch.nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        logits, _value = self.net(high, thres, last_action)
+        return logits
 
 
 def git_revision() -> str:
@@ -114,7 +152,7 @@ def base_metadata(kind: str, checkpoint: Path | None) -> dict[str, str]:
     thresholds = ThresholdConfig()
     return {
         "edge_explorer.model": kind,
-        "edge_explorer.input_encoding": PREDICTOR_ENCODING if kind == "predictor" else POLICY_ENCODING,
+        "edge_explorer.input_encoding": ENCODINGS[kind],
         "edge_explorer.thresholds": json.dumps({"t_f_max": thresholds.t_f_max, "t_o": thresholds.t_o}),
         "edge_explorer.action_table_version": str(TABLE_VERSION),
         "edge_explorer.training_config_sha256": _training_config_hash(checkpoint) if checkpoint else "none",
@@ -153,6 +191,24 @@ def policy_network(actor: torch.nn.Module, checkpoint: Path | None = None) -> Ex
     )
 
 
+def goal_policy_network(net: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
+    """The export view of a :class:`~edge_explorer.learn.goal_net.GoalNet`: float-code inputs, the goal logits
+    only (:class:`GoalLogits`), the goal-grid contract in the metadata."""
+    size = OBSERVATION_WINDOW_CELLS
+    metadata = {
+        **base_metadata("goal_policy", checkpoint),
+        "edge_explorer.output": f"goal-cell logits [1, {GOAL_GRID_CELLS}, {GOAL_GRID_CELLS}]; goal = masked argmax",
+        "edge_explorer.goal_grid": GOAL_GRID_CONTRACT,
+    }
+    return ExportNetwork(
+        "goal_policy",
+        GoalLogits(net).eval(),
+        {"high": (1, size, size), "thres": (1, size, size), "last_action": (1, NUM_ACTIONS)},
+        ("logits",),
+        metadata,
+    )
+
+
 def load_network(recipe: Recipe) -> ExportNetwork:
     """Load the recipe's checkpoint (safetensors, never pickles) as an :class:`ExportNetwork`."""
     if recipe.model == "predictor":
@@ -165,6 +221,14 @@ def load_network(recipe: Recipe) -> ExportNetwork:
         if unet.config.in_channels != INPUT_CHANNELS:
             raise RecipeError(f"{recipe.checkpoint}: the predictor must take {INPUT_CHANNELS} input channels")
         return predictor_network(unet.fused(), recipe.checkpoint)
+    if recipe.model == "goal_policy":
+        from edge_explorer.learn.goal_net import load_goal_net
+
+        try:
+            net = load_goal_net(recipe.checkpoint)
+        except (ValueError, RuntimeError) as exc:
+            raise RecipeError(f"{recipe.checkpoint}: not a goal policy checkpoint ({exc})") from None
+        return goal_policy_network(net, recipe.checkpoint)
     from edge_explorer.learn.policy_net import load_policy_module
 
     return policy_network(load_policy_module(recipe.checkpoint), recipe.checkpoint)

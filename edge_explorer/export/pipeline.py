@@ -33,7 +33,13 @@ from edge_explorer.backends.litert_cpu import LiteRtCpuBackend
 from edge_explorer.backends.onnxruntime_cpu import OnnxRuntimeCpuBackend
 from edge_explorer.export import gates as gate_fns
 from edge_explorer.export import onnx_formats, tflite
-from edge_explorer.export.calibration import Feed, Observations, policy_observations, predictor_observations
+from edge_explorer.export.calibration import (
+    Feed,
+    Observations,
+    goal_observations,
+    policy_observations,
+    predictor_observations,
+)
 from edge_explorer.export.networks import ExportNetwork, load_network
 from edge_explorer.export.recipe import Recipe, check_inputs_exist
 
@@ -135,21 +141,25 @@ def torch_outputs(network: ExportNetwork, feeds: Sequence[Feed]) -> list[np.ndar
 
 
 def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations:
-    """The recipe's calibration and held-back observations (policy rollouts act with the fp32 network)."""
+    """The recipe's calibration and held-back observations (policy rollouts act with the fp32 network; the thres
+    map's predictor is loaded as ``bench explore --predictor`` loads it)."""
     if network.kind == "predictor":
         return predictor_observations(recipe.calibration, next(iter(network.inputs)))
 
-    def act(obs: dict[str, np.ndarray]) -> int:
+    def scores(obs: dict[str, np.ndarray]) -> np.ndarray:
         with torch.no_grad():
             args = (torch.from_numpy(np.asarray(obs[n], dtype=network.dtype(n))[None]) for n in network.inputs)
-            return int(torch.argmax(network.module(*args)))
+            return network.module(*args).numpy()
 
     predictor = None
     if recipe.calibration.predictor is not None:
-        from edge_explorer.learn.unet import TorchPredictor
+        from edge_explorer.bench.explore import load_predictor
 
-        predictor = TorchPredictor.from_file(recipe.calibration.predictor)
-    return policy_observations(recipe.calibration, act, predictor)
+        predictor = load_predictor(str(recipe.calibration.predictor))
+    if network.kind == "goal_policy":
+        return goal_observations(recipe.calibration, lambda obs, mask: gate_fns.masked_argmax(scores(obs), mask),
+                                 predictor)  # fmt: skip
+    return policy_observations(recipe.calibration, lambda obs: int(np.argmax(scores(obs))), predictor)
 
 
 def graph_cost(onnx_path: Path, network: ExportNetwork) -> dict:
@@ -206,11 +216,13 @@ def _export_in(
     name = recipe.name
     held, calibration = ([network.cast(f) for f in feeds] for feeds in (obs.held_back, obs.calibration))
     reference = torch_outputs(network, held)
-    gate_kwargs = {"maps": obs.maps} if network.kind == "predictor" else {}
-    gate = gate_fns.predictor_gate if network.kind == "predictor" else gate_fns.policy_gate
 
     def recipe_gate(outputs: list[np.ndarray]) -> gate_fns.GateResult:
-        return gate(reference, outputs, gates=recipe.gates, **gate_kwargs)
+        if network.kind == "predictor":
+            return gate_fns.predictor_gate(reference, outputs, obs.maps, recipe.gates)
+        if network.kind == "goal_policy":
+            return gate_fns.goal_gate(reference, outputs, obs.masks, recipe.gates)
+        return gate_fns.policy_gate(reference, outputs, recipe.gates)
 
     example = [torch.from_numpy(held[0][n]) for n in network.inputs]
     with torch.no_grad():

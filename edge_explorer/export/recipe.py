@@ -2,17 +2,18 @@
 
 A recipe says what to export and how to judge it::
 
-    model = "predictor"                     # predictor | policy: the network family, its calibration and its gates
+    model = "predictor"                     # predictor | policy | goal_policy: the network, its calibration, gates
     checkpoint = "models/predictor/predictor.safetensors"   # relative to the recipe's folder's parent (the repo)
 
     [calibration]                           # observations recorded from simulator rollouts on the val split
     split = "val"
     plans = 16                              # val plans flown for calibration …
     held_back_plans = 8                     # … and further val plans, never calibrated on, for the accuracy gates
-    per_plan = 8                            # observations recorded per plan
-    explorer = "random-goal"                # predictor: random-goal | frontier | fuel; policy: policy | random
+    per_plan = 8                            # observations (goal_policy: decisions) recorded per plan
+    explorer = "random-goal"                # predictor: random-goal | frontier | fuel; (goal_)policy: policy | random
     seed = 0
-    predictor = "models/predictor/predictor.safetensors"   # policy only, optional: the thres map's predictor
+    predictor = "models/predictor"          # (goal_)policy only, optional: the thres map's predictor (a model
+                                            # folder or a .safetensors U-Net, as bench explore --predictor)
 
     [quantization]
     method = "minmax"                       # minmax | entropy | percentile (onnxruntime's calibrators)
@@ -22,13 +23,15 @@ A recipe says what to export and how to judge it::
     [formats]
     produce = ["onnx_fp32", "onnx_int8", "tflite_int8"]
 
-    [gates]                                 # predictor: max_f1_drop, min_cell_agreement; policy: min_top1_agreement
+    [gates]                                 # predictor: max_f1_drop, min_cell_agreement;
+                                            # policy, goal_policy: min_top1_agreement (goal_policy: masked argmax)
 
     [latency]
     repeats = 30                            # timed runs per format (after warm-up), one thread
 
 Paths are resolved against the project root (the recipe folder's parent), so ``quantize/predictor.toml`` works from
-anywhere. Every key is checked: an unknown key or value names itself and the allowed choices.
+anywhere. Every key is checked: an unknown key or value names itself and the allowed choices. The gates see
+``held_back_plans × per_plan`` held-back observations (fewer only where an episode has nothing left to explore).
 """
 
 from __future__ import annotations
@@ -41,11 +44,19 @@ from typing import Any
 
 from edge_explorer.errors import EdgeExplorerError
 
-MODELS = ("predictor", "policy")
+MODELS = ("predictor", "policy", "goal_policy")
 METHODS = ("minmax", "entropy", "percentile")
 FORMATS = ("onnx_fp32", "onnx_int8", "tflite_int8")
-EXPLORERS = {"predictor": ("random-goal", "frontier", "fuel"), "policy": ("policy", "random")}
-GATE_KEYS = {"predictor": ("max_f1_drop", "min_cell_agreement"), "policy": ("min_top1_agreement",)}
+EXPLORERS = {
+    "predictor": ("random-goal", "frontier", "fuel"),
+    "policy": ("policy", "random"),
+    "goal_policy": ("policy", "random"),
+}
+GATE_KEYS = {
+    "predictor": ("max_f1_drop", "min_cell_agreement"),
+    "policy": ("min_top1_agreement",),
+    "goal_policy": ("min_top1_agreement",),
+}
 
 
 class RecipeError(EdgeExplorerError):
@@ -144,7 +155,7 @@ def load_recipe(path: str | Path) -> Recipe:
     if cal.get("split", "val") != "val":
         raise RecipeError(f"{cw}: 'split' must be 'val' (train or test data would leak), got {cal['split']!r}")
     predictor = cal.get("predictor")
-    if predictor is not None and model != "policy":
+    if predictor is not None and model == "predictor":
         raise RecipeError(f"{cw}: 'predictor' is for policy recipes (the thres map's predictor) only")
     calibration = CalibrationConfig(
         plans=_positive(cw, "plans", cal.get("plans", CalibrationConfig.plans)),
@@ -197,5 +208,5 @@ def check_inputs_exist(recipe: Recipe) -> None:
         hint = "train it first (edge-explorer train …) or fix 'checkpoint'"
         raise RecipeError(f"{recipe.path}: checkpoint {recipe.checkpoint} does not exist; {hint}")
     predictor = recipe.calibration.predictor
-    if predictor is not None and not predictor.is_file():
+    if predictor is not None and not predictor.exists():
         raise RecipeError(f"{recipe.path} [calibration]: predictor {predictor} does not exist")

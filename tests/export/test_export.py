@@ -98,7 +98,7 @@ def test_a_bad_recipe_is_one_line_naming_the_problem(tmp_path, edit, message):
 def test_the_shipped_recipes_are_valid():
     root = Path(__file__).resolve().parents[2] / "quantize"
     recipes = [load_recipe(p) for p in sorted(root.glob("*.toml"))]
-    assert {r.model for r in recipes} == {"predictor", "policy"}
+    assert {r.model for r in recipes} == {"predictor", "policy", "goal_policy"}
     assert all(r.checkpoint.parent.parent.name == "models" for r in recipes)
 
 
