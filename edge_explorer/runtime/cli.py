@@ -55,10 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     run.add_argument(
         "--planner",
-        choices=("auto", "drl", "frontier"),
+        choices=("auto", "drl", "frontier", "predfrontier"),
         default="auto",
-        help="drl: the shipped policy (an error if missing); frontier: Nearest Frontier; auto (default): "
-        "the policy when shipped, else frontier",
+        help="drl: the shipped policy (an error if missing); frontier: Nearest Frontier; predfrontier: the "
+        "predictive expert (goals on the fused map); auto (default): the policy when flight-ready, else frontier",
     )
     run.add_argument(
         "--profile",

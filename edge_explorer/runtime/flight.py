@@ -62,6 +62,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
             autopilot=options.autopilot,
             setpoint_rate_hz=setpoint_rate_hz,
             decision_lead_s=1.0 / profile.rates_hz.depth,
+            exploration_planner="predfrontier" if options.planner == "predfrontier" else "frontier",
         )
         if options.time_limit_s is not None:
             config = replace(config, time_limit_s=options.time_limit_s)

@@ -318,6 +318,22 @@ def test_the_frontier_planner_with_a_predictor_counts_predicted_coverage(raster,
 
 
 @pytest.mark.slow
+def test_the_predictive_expert_flies_on_the_fused_map(raster, camera, tmp_path):
+    """``exploration_planner = predfrontier``: the prediction comes before the waypoint (the planner targets the
+    fused map's frontier) and the flight reaches the coverage goal without a collision."""
+    predictor = PredictorRuntime(load_model(write_predictor_model(tmp_path / "predictor"), ORDER))
+    config = replace(CONFIG, coverage_goal=0.7, time_limit_s=12.0, exploration_planner="predfrontier")
+    flight = fly(raster, camera, tmp_path, config, predictor=predictor)
+    report = flight.report
+    assert report.planner == "predfrontier" and report.predictor
+    assert report.ending == "coverage goal" and report.coverage >= 0.7
+    assert report.stages["predictor"].count == report.decisions
+    assert flight.vehicle.collisions == 0
+    with pytest.raises(ValueError, match="exploration_planner"):
+        replace(CONFIG, exploration_planner="nearest")
+
+
+@pytest.mark.slow
 def test_a_policy_flying_into_walls_is_overruled_by_the_safety_check(raster, camera, tmp_path):
     """A policy that always says FORWARD: the west wall of the east room stops it; every unsafe choice is replaced
     by the frontier planner's (or hover); the vehicle never touches a wall."""

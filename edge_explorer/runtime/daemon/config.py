@@ -40,6 +40,9 @@ class DaemonConfig:
     max_hold_s: float = 60.0  # inputs not back after this long: end the flight (the autopilot's failsafe takes over)
     reanchor_distance_m: float = 0.5
     footprint_clear_m: float = 0.2  # flown space counted as free (below the 0.25 m robot radius; 0 disables)
+    # The goal planner that explores (and takes over from a policy): "frontier" (Nearest Frontier on the observed
+    # map) or "predfrontier" (the predictive expert: goals on the fused map, DESIGN.md §5), plan/baselines.PLANNERS.
+    exploration_planner: str = "frontier"
     policy_hover_limit: int = 3  # consecutive policy hovers after which the frontier planner decides
     frontier_retries: int = 1  # times the frontier planner's dropped targets get another chance before "explored"
     # The policy hands over to the frontier planner for the rest of the flight when the observed area grew by less
@@ -57,6 +60,8 @@ class DaemonConfig:
     follow: FollowConfig = field(default_factory=lambda: FollowConfig(noise_sigmas=0.0))
 
     def __post_init__(self) -> None:
+        if self.exploration_planner not in ("frontier", "predfrontier"):
+            raise ValueError(f"exploration_planner must be frontier or predfrontier, got {self.exploration_planner!r}")
         if not 0 < self.coverage_goal <= 1:
             raise ValueError(f"coverage_goal must be in (0, 1], got {self.coverage_goal}")
         if self.autopilot not in AUTOPILOT_MODES:

@@ -95,7 +95,9 @@ class DecisionPipeline:
         # The prediction feeds the policy's observation and the coverage count. When the frontier planner decides
         # (no policy, or the policy handed over) the waypoint does not depend on it, so it runs once the waypoint is
         # out (the coverage goal then ends exploration one decision later).
-        predict_after = self.predictor is not None and self._frontier_decides
+        predict_after = (
+            self.predictor is not None and self._frontier_decides and self.config.exploration_planner == "frontier"
+        )
         thresholded = None
         if not predict_after:
             thresholded = self._predict(maps, low_cell)
@@ -181,9 +183,9 @@ class DecisionPipeline:
                 if self._policy_hovers <= self.config.policy_hover_limit:
                     yield "policy", action
             with self._candidate_stage("planner"):
-                action = self.frontier.act(maps, pose, previous)
+                action = self.frontier.act(maps, pose, previous, thresholded)
                 if action is None and self._frontier_decides and self._retry_frontiers(maps):
-                    action = self.frontier.act(maps, pose, previous)
+                    action = self.frontier.act(maps, pose, previous, thresholded)
             if action is None and self._frontier_decides:
                 self._finish_exploring("explored")
             else:

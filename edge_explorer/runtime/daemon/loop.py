@@ -14,6 +14,7 @@ from collections.abc import Callable
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.plan.frontier import NearestFrontier, PlannerConfig
 from edge_explorer.plan.policy import PolicyRuntime
+from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.runtime.daemon.config import DaemonConfig
 from edge_explorer.runtime.daemon.decisions import DecisionPipeline
@@ -58,8 +59,12 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
         self.table = table if table is not None else load_action_table()
         self.recorder = recorder
         self.timings = StageTimings()
-        # Nearest Frontier, with this daemon's follower settings: the fallback, or the planner
-        self.frontier = NearestFrontier(PlannerConfig(follow=config.follow), self.table)
+        # The goal planner with this daemon's follower settings: the fallback, or the planner
+        planner_config = PlannerConfig(follow=config.follow)
+        if config.exploration_planner == "predfrontier":
+            self.frontier = PredictiveFrontier(PredictiveConfig(planner=planner_config), self.table)
+        else:
+            self.frontier = NearestFrontier(planner_config, self.table)
         self.maps: VoxelMaps | None = None
         self._region = region
         self._feeder = SetpointFeeder(link, config.setpoint_rate_hz, self.timings)
@@ -70,7 +75,7 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
 
     @property
     def planner_name(self) -> str:
-        return "drl" if self.policy is not None else "frontier"
+        return "drl" if self.policy is not None else self.config.exploration_planner
 
     @property
     def phase(self) -> str:

@@ -49,7 +49,8 @@ def choose_models(
 ) -> ModelChoice:
     """Load the shipped models the run can use (see DESIGN.md §8 and the module docstring).
 
-    ``planner``: ``drl`` needs ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
+    ``planner``: ``frontier`` and ``predfrontier`` never load the policy; ``drl`` needs
+    ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
     when it is missing or cannot be loaded; ``auto`` uses the policy only when its card says it is flight-ready
     (``flight_ready.ready``: the building evaluation of these weights passed, see
     :func:`edge_explorer.learn.policy_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
@@ -73,8 +74,8 @@ def choose_models(
     notes: list[str] = []
     policy = None
     policy_card = models_dir / "policy" / CARD_FILE
-    if planner == "frontier":
-        notes.append("planner: frontier (asked for)")
+    if planner in ("frontier", "predfrontier"):
+        notes.append(f"planner: {planner} (asked for)")
     elif planner == "auto" and policy_card.is_file() and not (ready := _flight_ready(policy_card))[0]:
         notes.append(f"planner: frontier (the DRL policy is not flight-ready: {ready[1]}; --planner drl flies it)")
     else:
