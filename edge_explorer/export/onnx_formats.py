@@ -1,7 +1,9 @@
 """ONNX artifacts: fp32 from torch (dynamo exporter, opset 18) and int8 QDQ from onnxruntime's static quantization.
 
 * :func:`export_fp32`: ``torch.onnx.export(dynamo=True)`` (onnxscript), the graph checked by ``onnx.checker``
-  (full check, with shape inference), and the exporter's metadata in ``metadata_props``.
+  (full check, with shape inference), and the exporter's metadata in ``metadata_props``. A ``Gather`` of one
+  constant index (torch's ``x[:, 0]``, e.g. the goal policy's score channel) becomes ``Slice`` + ``Squeeze``
+  (:func:`gather_to_slice`): the same values, and ops the Edge TPU has (it has no GATHER).
 * :func:`quantize_int8`: ``onnxruntime.quantization.quantize_static`` in the QDQ format (int8 activations and
   weights, per-channel weights when the recipe says so) after ``quant_pre_process`` (shape inference + graph
   optimisation), calibrated on the recipe's observations with the recipe's method (MinMax / Entropy /
@@ -56,9 +58,41 @@ def export_fp32(network: ExportNetwork, path: Path) -> None:
     model.producer_name = "edge-explorer export"
     # The exporter's own props (torch node names, graph signature) are debugging noise in a shipped model.
     del model.metadata_props[:]
+    gather_to_slice(model)
     onnx.helper.set_model_props(model, network.metadata)
     onnx.save(model, str(path))
     onnx.checker.check_model(str(path), full_check=True)
+
+
+def gather_to_slice(model: onnx.ModelProto) -> int:
+    """Rewrite every ``Gather(x, i)`` with a constant scalar index ``i`` as ``Squeeze(Slice(x, i, i + 1, axis),
+    axis)``: exact. Returns the number of rewrites; the model is changed in place."""
+    graph = model.graph
+    constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    constant_nodes = (n for n in graph.node if n.op_type == "Constant" and n.attribute[0].name == "value")
+    constants.update({n.output[0]: numpy_helper.to_array(n.attribute[0].t) for n in constant_nodes})
+    rewrites = 0
+    for gather in [n for n in graph.node if n.op_type == "Gather"]:
+        index = constants.get(gather.input[1])
+        if index is None or index.ndim != 0:
+            continue
+        axis = next((a.i for a in gather.attribute if a.name == "axis"), 0)
+        start = int(index)
+        end = start + 1 if start != -1 else np.iinfo(np.int64).max
+        names = [f"{gather.name or gather.output[0]}_{k}" for k in ("starts", "ends", "axes", "sliced")]
+        for name, value in zip(names[:3], (start, end, axis), strict=True):
+            graph.initializer.append(numpy_helper.from_array(np.array([value], np.int64), name))
+        at = list(graph.node).index(gather)
+        graph.node.remove(gather)
+        graph.node.insert(at, onnx.helper.make_node("Slice", [gather.input[0], *names[:3]], [names[3]]))
+        graph.node.insert(at + 1, onnx.helper.make_node("Squeeze", [names[3], names[2]], [gather.output[0]]))
+        rewrites += 1
+        if not any(gather.input[1] in node.input for node in graph.node):  # drop the index nothing reads any more
+            for unused in [t for t in graph.initializer if t.name == gather.input[1]]:
+                graph.initializer.remove(unused)
+            for unused in [n for n in graph.node if n.op_type == "Constant" and gather.input[1] in n.output]:
+                graph.node.remove(unused)
+    return rewrites
 
 
 class FeedReader(CalibrationDataReader):
