@@ -86,20 +86,30 @@ def run_summary(
 def write_summary(out: Path, summary: dict[str, Any], daemon: Any, raster: Any) -> None:
     """``summary.json`` and ``summary.png`` in ``out``.
 
-    The picture is drawn in a forked child process: matplotlib and its figure (~65 MB resident) never load into the
-    daemon's process, whose peak RSS is the flight's (a drone's daemon would not draw at all)."""
+    The picture is drawn in a fresh interpreter (:func:`in_fresh_process`) from plain arrays: matplotlib and its
+    figure (~65 MB resident) never load into the daemon's process, and the drawing process holds numpy and
+    matplotlib only, not a copy of the daemon (a drone's daemon would not draw at all)."""
     from edge_explorer.cli import write_json
 
     write_json(out / "summary.json", summary)
-    in_forked_child(draw_run, out / "summary.png", summary, daemon.view, raster, daemon.home_xy_m)
+    view = daemon.view
+    if view is None:
+        panels = [("no decision was taken: plan and path only", None, None)]
+    else:
+        panels = [("observed map (0.05 m) and path", view.high, view.high_grid)]
+        if view.thresholded is not None:
+            panels.append(("observed ∪ thresholded prediction (0.20 m)", view.thresholded, view.low_grid))
+    plan = None if raster is None else (raster.occupied, raster.interior, raster.grid)
+    in_fresh_process(draw_run, out / "summary.png", summary, panels, plan, daemon.home_xy_m)
 
 
-def in_forked_child(function: Callable[..., object], *args: Any) -> None:
-    """Run ``function(*args)`` in a forked child process and wait for it; the arguments are inherited, not copied.
-    Raises :class:`RuntimeError` when the child fails (its traceback is on stderr)."""
+def in_fresh_process(function: Callable[..., object], *args: Any) -> None:
+    """Run ``function(*args)`` in a new interpreter (multiprocessing's spawn: it imports ``function``'s module and
+    unpickles the arguments, nothing else of this process) and wait for it. Raises :class:`RuntimeError` when the
+    child fails (its traceback is on stderr)."""
     import multiprocessing
 
-    child = multiprocessing.get_context("fork").Process(target=function, args=args, name=function.__name__)
+    child = multiprocessing.get_context("spawn").Process(target=function, args=args, name=function.__name__)
     child.start()
     child.join()
     if child.exitcode != 0:
@@ -129,10 +139,17 @@ def _rss_split(rss_mb: dict[str, float]) -> str:
     return f" (at the end {rss_mb['anon']:.0f} MB allocated + {rss_mb['file']:.0f} MB of mapped library pages)"
 
 
-def draw_run(path: Path, summary: dict[str, Any], view: Any, raster: Any, home_xy: tuple[float, float] | None) -> None:
+def draw_run(
+    path: Path,
+    summary: dict[str, Any],
+    panels: list[tuple[str, Any, Any]],
+    plan: tuple[Any, Any, Any] | None,
+    home_xy: tuple[float, float] | None,
+) -> None:
     """The run's picture: observed 0.05 m map and path over the true plan; beside it the thresholded prediction.
 
-    ``view`` is the last decision's maps (None when the run ended before its first decision: plan and path only).
+    ``panels``: (title, cell codes, their GridSpec) per panel, codes None for plan and path only (the run ended
+    before its first decision); ``plan``: the true plan's (occupied, interior, GridSpec), None without a plan.
     """
     import matplotlib
 
@@ -142,19 +159,13 @@ def draw_run(path: Path, summary: dict[str, Any], view: Any, raster: Any, home_x
 
     from edge_explorer.world.grid import FREE, OCCUPIED
 
-    if view is None:
-        panels = [("no decision was taken: plan and path only", None, None)]
-    else:
-        panels = [("observed map (0.05 m) and path", view.high, view.high_grid)]
-    if view is not None and view.thresholded is not None:
-        panels.append(("observed ∪ thresholded prediction (0.20 m)", view.thresholded, view.low_grid))
     fig, axes = plt.subplots(1, len(panels), figsize=(7 * len(panels), 5), squeeze=False)
     path_xy = np.asarray(summary["path_xy_m"], dtype=float).reshape(-1, 2)
     for ax, (title, codes, grid) in zip(axes[0], panels, strict=True):
-        if raster is not None:
-            g = raster.grid
+        if plan is not None:
+            occupied, interior, g = plan
             extent = (g.origin_xy[0], g.origin_xy[0] + g.size_xy_m[0], g.origin_xy[1], g.origin_xy[1] + g.size_xy_m[1])
-            truth = np.where(raster.occupied, 0.55, np.where(raster.interior, 0.93, 1.0))
+            truth = np.where(occupied, 0.55, np.where(interior, 0.93, 1.0))
             ax.imshow(truth, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
         if codes is not None:
             rgba = np.zeros((*codes.shape, 4))
@@ -175,7 +186,7 @@ def draw_run(path: Path, summary: dict[str, Any], view: Any, raster: Any, home_x
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-        if raster is not None:
+        if plan is not None:
             ax.set_xlim(extent[0], extent[1])
             ax.set_ylim(extent[2], extent[3])
     pct = lambda v: "–" if v is None else f"{100 * v:.1f} %"  # noqa: E731

@@ -174,10 +174,10 @@ def _percent(value: float | None) -> str:
 
 def _write_outputs(out: Path, report: dict[str, Any]) -> None:
     from edge_explorer.cli import write_json
-    from edge_explorer.runtime.flight_summary import in_forked_child
+    from edge_explorer.runtime.flight_summary import in_fresh_process
 
     write_json(out / "soak.json", report)
-    in_forked_child(plot_soak, out / "soak.png", report)
+    in_fresh_process(plot_soak, out / "soak.png", report)
 
 
 def plot_soak(path: Path, report: dict[str, Any]) -> None:
