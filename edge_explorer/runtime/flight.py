@@ -32,15 +32,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
     """Fly one run as ``edge-explorer run`` does and write its outputs; returns the summary (also in JSON)."""
     from contextlib import ExitStack
 
-    from edge_explorer.bench.explore import run_seed
-    from edge_explorer.mapping.voxels import VoxelRegion
     from edge_explorer.profiling.device_profile import load_profile
-    from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
-    from edge_explorer.runtime.depth_sources import Recorder
-    from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
-    from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
-    from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
-    from edge_explorer.world.catalog import load_building
 
     out = options.out_dir
     out.mkdir(parents=True, exist_ok=True)
@@ -49,6 +41,21 @@ def fly(options: RunOptions) -> dict[str, Any]:
     logging.getLogger().addHandler(file_log)
     try:
         profile = load_profile(options.profile)
+        # The start pose's child is forked before this process imports the daemon and loads the building and the
+        # models, so it inherits none of them: its peak RSS counts in the run's too (e.g. in /usr/bin/time's).
+        start = None
+        if options.connect is None and options.plan is not None:
+            start = _start_pose(options.plan, options.seed)
+
+        from edge_explorer.bench.explore import run_seed
+        from edge_explorer.mapping.voxels import VoxelRegion
+        from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
+        from edge_explorer.runtime.depth_sources import Recorder
+        from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
+        from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
+        from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
+        from edge_explorer.world.catalog import load_building
+
         raster = load_building(options.plan) if options.plan is not None else None
         noise_seed = run_seed(options.seed, raster.name, options.run_index) if raster is not None else options.seed
         models = choose_models(
@@ -67,12 +74,10 @@ def fly(options: RunOptions) -> dict[str, Any]:
         if options.time_limit_s is not None:
             config = replace(config, time_limit_s=options.time_limit_s)
         with ExitStack() as stack:
-            start = None
             vehicle = None
             if options.connect is None:
-                if raster is None:
+                if raster is None or start is None:
                     raise ValueError("the simulated vehicle needs a plan")
-                start = _start_pose(options.plan, options.seed)
                 vehicle = stack.enter_context(_simulated_vehicle(raster, start, noise_seed, options.autopilot))
                 connect = f"udpout:127.0.0.1:{vehicle.address[1]}"
             else:
@@ -96,7 +101,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
             )
             vehicle_cpu0 = thread_cpu_s(SIM_VEHICLE_THREAD)
             with _stop_on_signals(daemon):
-                report = daemon.run(_progress_printer(models) if options.progress else None)
+                report = daemon.run(_progress_printer(models, config.exploration_planner) if options.progress else None)
             vehicle_cpu_s = thread_cpu_s(SIM_VEHICLE_THREAD) - vehicle_cpu0
             collisions = vehicle.state().collisions if vehicle is not None else None
             peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -239,9 +244,9 @@ def resident_memory_mb() -> dict[str, float]:
     return found
 
 
-def _progress_printer(models: Any) -> Callable[[Any], None]:
-    """Prints one progress line: coverage, path, decision latency, where the models run."""
-    policy = "frontier" if models.policy is None else f"drl on {models.policy.model.backend.name}"
+def _progress_printer(models: Any, exploration_planner: str) -> Callable[[Any], None]:
+    """Prints one progress line: coverage, path, decision latency, the planner and where the models run."""
+    policy = exploration_planner if models.policy is None else f"drl on {models.policy.model.backend.name}"
     predictor = "none" if models.predictor is None else models.predictor.model.backend.name
     backends = f"planner {policy}, predictor {predictor}"
 
