@@ -32,7 +32,15 @@ def fly(options: RunOptions) -> dict[str, Any]:
     """Fly one run as ``edge-explorer run`` does and write its outputs; returns the summary (also in JSON)."""
     from contextlib import ExitStack
 
+    from edge_explorer.bench.explore import run_seed
+    from edge_explorer.mapping.voxels import VoxelRegion
     from edge_explorer.profiling.device_profile import load_profile
+    from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
+    from edge_explorer.runtime.depth_sources import Recorder
+    from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
+    from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
+    from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
+    from edge_explorer.world.catalog import load_building
 
     out = options.out_dir
     out.mkdir(parents=True, exist_ok=True)
@@ -41,21 +49,6 @@ def fly(options: RunOptions) -> dict[str, Any]:
     logging.getLogger().addHandler(file_log)
     try:
         profile = load_profile(options.profile)
-        # The start pose's child is forked before this process imports the daemon and loads the building and the
-        # models, so it inherits none of them: its peak RSS counts in the run's too (e.g. in /usr/bin/time's).
-        start = None
-        if options.connect is None and options.plan is not None:
-            start = _start_pose(options.plan, options.seed)
-
-        from edge_explorer.bench.explore import run_seed
-        from edge_explorer.mapping.voxels import VoxelRegion
-        from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
-        from edge_explorer.runtime.depth_sources import Recorder
-        from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
-        from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
-        from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
-        from edge_explorer.world.catalog import load_building
-
         raster = load_building(options.plan) if options.plan is not None else None
         noise_seed = run_seed(options.seed, raster.name, options.run_index) if raster is not None else options.seed
         models = choose_models(
@@ -74,10 +67,12 @@ def fly(options: RunOptions) -> dict[str, Any]:
         if options.time_limit_s is not None:
             config = replace(config, time_limit_s=options.time_limit_s)
         with ExitStack() as stack:
+            start = None
             vehicle = None
             if options.connect is None:
-                if raster is None or start is None:
+                if raster is None:
                     raise ValueError("the simulated vehicle needs a plan")
+                start = _start_pose(options.plan, options.seed)
                 vehicle = stack.enter_context(_simulated_vehicle(raster, start, noise_seed, options.autopilot))
                 connect = f"udpout:127.0.0.1:{vehicle.address[1]}"
             else:
