@@ -17,6 +17,10 @@ best ``gain^γ / (path_m + cost_offset_m)`` is chosen (γ = ``gain_exponent``); 
 the nearest observed frontier is. The goal faces the cluster's centre; a cluster reached without showing most of
 it hands over to its nearest remaining cell (:func:`~edge_explorer.plan.frontier.cluster_handover`), as FUEL does.
 
+A target the prediction ends while it is still unobserved is *committed*: it stays a goal candidate until it is
+observed, so flickering predictions cannot make the vehicle alternate between two targets (seen on one test plan:
+1,200 steps between two cells, each predicted away while the vehicle flew to the other).
+
 Paths, following, replanning and failure handling are the shared :class:`~edge_explorer.plan.frontier.GoalPlanner`
 loop: paths run only through *observed* free space at the robot's clearance, so a prediction never makes a cell
 flyable, and the goal is replanned when most of its cluster stops being a fused frontier (seen or predicted).
@@ -117,6 +121,7 @@ class PredictiveFrontier(GoalPlanner):
         super().__init__(config.planner, table)
         self.predictive = config
         self._fused: np.ndarray | None = None  # this step's fused 0.20 m map
+        self._committed: np.ndarray | None = None  # bool, 0.20 m: targets the prediction once ended unobserved
         self.last_action = 0  # the motion the vehicle carries into this step (a learned planner observes it)
 
     def act(
@@ -130,14 +135,34 @@ class PredictiveFrontier(GoalPlanner):
         """The fused 0.20 m map of the current step (``None`` before the first)."""
         return self._fused
 
+    def reset(self) -> None:
+        super().reset()
+        self._committed = None
+
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
-        """The fused frontier (less the dropped targets), or the observed one when the fused map has none."""
+        """The fused frontier plus the committed targets still on the observed frontier (less the dropped
+        targets), or the observed frontier when that is empty."""
         self._fused = maps.low if fused_low is None else fused_low
         dropped = self.dropped(maps)
-        frontier = fused_frontier_mask(maps.low, self._fused) & ~dropped
+        if self._committed is None or self._committed.shape != maps.low.shape:
+            self._committed = np.zeros(maps.low.shape, dtype=bool)
+        observed = frontier_mask(maps.low)
+        frontier = (fused_frontier_mask(maps.low, self._fused) | (self._committed & observed)) & ~dropped
         if not frontier.any():
-            frontier = frontier_mask(maps.low) & ~dropped
+            frontier = observed & ~dropped
         return View(maps, pose, frontier, self.config)
+
+    def status(self, goal: Goal, view: View, pose: Pose) -> str:
+        """The shared events, plus commitment: a target that stops being a fused frontier while most of it is still
+        unobserved was ended by the prediction alone. Predictions flicker as the vehicle moves (the ego window
+        shifts, the free threshold opens), and two such targets can take turns for ever; so such a target is
+        *committed* — it stays a goal candidate until it is observed."""
+        status = super().status(goal, view, pose)
+        if status == "replan" and self._committed is not None and not goal.retreat:
+            unobserved = frontier_mask(view.maps.low).flat[goal.target_cells]
+            if unobserved.mean() > 1.0 - goal.done_fraction:
+                self._committed.flat[goal.target_cells[unobserved]] = True
+        return status
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         if not view.frontier.any():
