@@ -3,14 +3,18 @@
 Input: the paper's observation (DESIGN.md §5) — the heading-up 237 × 237 windows ``high`` (0.05 m, 11.85 m
 across) and ``thres`` (0.20 m, 47.4 m) as int8 cell codes, and the one-hot ``last_action``.
 
+* ``high`` is max-pooled 4 × 4 to 0.20 m *as codes* (the pooled cell takes the highest code: NON_FLIGHT over
+  OCCUPIED over UNKNOWN over FREE — a conservative coarse map) and zero-padded into the ``thres`` frame, where it
+  covers the central 11.85 m (the two windows share their centre cell), so both layers line up cell for cell.
 * Each code layer is encoded as three 0/1 channels (free, occupied, non-flight; unknown is all zero) with ReLUs only
   (:func:`encode_codes`), which quantizes to full-integer int8.
-* ``high`` is max-pooled 4 × 4 to 0.20 m inside the network and zero-padded into the ``thres`` frame, where it
-  covers the central 11.85 m (the two windows share their centre cell), so both layers line up cell for cell.
-* Encoder: strided 3 × 3 convolutions 240 → 120 → 60 (the goal-cell resolution, 0.8 m) → 30 → 15; the last motion
-  enters as a per-channel bias at 15 × 15. Decoder: nearest ×2 upsampling with skip concatenation back to 60 × 60,
-  a 1 × 1 convolution to one score per goal cell, cropped to 59 × 59 (goal cell (i, j) covers observation cells
-  [4i, 4i + 4) — :mod:`edge_explorer.plan.goal_grid`).
+* Encoder: a 4 × 4 stride-4 convolution straight to the goal-cell resolution (240 → 60, 0.8 m), then 3 × 3
+  convolutions at 60, 30 and 15 cells; the last motion enters as a per-channel bias at 15 × 15. Decoder: nearest
+  ×2 upsampling with skip concatenation back to 60 × 60, a 1 × 1 convolution to one score per goal cell, cropped to
+  59 × 59 (goal cell (i, j) covers observation cells [4i, 4i + 4) — :mod:`edge_explorer.plan.goal_grid`).
+  Pooling the codes before encoding and the stride-4 first layer keep the full-resolution work small: in the first
+  design (pooled channels, stride-2 convolutions at 120 and 60) the input stage took 1.9 of 2.7 ms of the int8
+  TFLite graph on one host thread.
 * Value head: global average of the 15 × 15 features → one number (PPO's critic).
 
 Only Conv2d, ReLU, MaxPool, zero padding, nearest Upsample, concat, add, mean and slicing: ops that quantize to
@@ -36,7 +40,7 @@ GOAL_NET_FORMAT = "edge-explorer/goal-policy"
 
 @dataclass(frozen=True)
 class GoalNetConfig:
-    """Widths of :class:`GoalNet` (encoder at 120, 60, 30, 15 cells; decoder at 30 and 60)."""
+    """Widths of :class:`GoalNet` (encoder at 60, 60, 30, 15 cells; decoder at 30 and 60)."""
 
     encoder: tuple[int, int, int, int] = (16, 24, 40, 64)
     decoder: tuple[int, int] = (40, 24)
@@ -58,7 +62,8 @@ def encode_codes(codes: torch.Tensor) -> torch.Tensor:
 
 
 def _conv(in_channels: int, out_channels: int, stride: int = 1, kernel: int = 3) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(in_channels, out_channels, kernel, stride, padding=kernel // 2), nn.ReLU())
+    padding = kernel // 2 if kernel % 2 else 0  # odd kernels keep the size (stride 1); even ones tile it
+    return nn.Sequential(nn.Conv2d(in_channels, out_channels, kernel, stride, padding=padding), nn.ReLU())
 
 
 class GoalNet(nn.Module):
@@ -72,12 +77,14 @@ class GoalNet(nn.Module):
         window = OBSERVATION_WINDOW_CELLS
         pooled = -(-window // GOAL_POOL)  # 60 cells of 0.20 m
         before = window // 2 - (window // 2) // GOAL_POOL  # the pooled high window's centre on the thres centre
+        # The codes are pooled shifted by +1 (so ≥ 0): the zero padding then stands for FREE and never wins the
+        # max-pool over a real cell, with no non-zero constant pad (PADV2 is no Edge TPU op).
         self.pad_high = nn.ZeroPad2d((0, pooled * GOAL_POOL - window, 0, pooled * GOAL_POOL - window))
         self.pool_high = nn.MaxPool2d(GOAL_POOL)
         self.place_high = nn.ZeroPad2d((before, _PADDED - pooled - before, before, _PADDED - pooled - before))
         self.pad_thres = nn.ZeroPad2d((0, _PADDED - window, 0, _PADDED - window))
-        self.down1 = _conv(6, e1, stride=2)  # 120
-        self.down2 = _conv(e1, e2, stride=2)  # 60: goal cells
+        self.down1 = _conv(6, e1, stride=GOAL_POOL, kernel=GOAL_POOL)  # 60: goal cells
+        self.down2 = _conv(e1, e2)  # 60
         self.down3 = _conv(e2, e3, stride=2)  # 30
         self.down4 = _conv(e3, e4, stride=2)  # 15
         self.motion = nn.Linear(NUM_ACTIONS, e4)
@@ -91,7 +98,8 @@ class GoalNet(nn.Module):
     def forward(
         self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        high_ch = self.place_high(self.pool_high(self.pad_high(encode_codes(high))))
+        pooled_codes = self.pool_high(self.pad_high(high.unsqueeze(1) + 1.0)).squeeze(1) - 1.0
+        high_ch = self.place_high(encode_codes(pooled_codes))
         x = torch.cat([self.pad_thres(encode_codes(thres)), high_ch], dim=1)
         s1 = self.down1(x)
         s2 = self.down2(s1)
