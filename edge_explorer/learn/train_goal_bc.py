@@ -15,7 +15,6 @@ last checkpoint), ``best.safetensors`` (best val agreement), ``train_log.csv``, 
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import time
@@ -27,6 +26,7 @@ import torch
 import torch.nn.functional as F
 
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.goal_demos import Demos, load_demos
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, save_goal_net
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
@@ -99,15 +99,6 @@ def agreement(model: GoalNet, demos: Demos, batch_size: int) -> float:
 
 def learning_rate(config: BCConfig, step: int) -> float:
     return 0.5 * config.learning_rate * (1.0 + math.cos(math.pi * min(step / config.total_steps, 1.0)))
-
-
-def _append_csv(path: Path, row: dict) -> None:
-    new = not path.exists()
-    with path.open("a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(row))
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
 
 
 def _save(out: Path, model: GoalNet, optimizer: torch.optim.Optimizer, state: dict) -> None:
@@ -187,13 +178,15 @@ def train(
             state["wall_s"] = time.perf_counter() - started
             bar.update(1)
             if state["step"] % config.log_every_steps == 0:
-                _append_csv(
+                append_csv_row(
                     out / "train_log.csv", {"step": state["step"], "loss": loss.item(), "wall_s": state["wall_s"]}
                 )
                 bar.set_postfix(loss=f"{loss.item():.3f}")
             if state["step"] % config.val_every_steps == 0 or state["step"] == config.total_steps:
                 score = agreement(model, val_set, 64)
-                _append_csv(out / "val_log.csv", {"step": state["step"], "agreement": score, "wall_s": state["wall_s"]})
+                append_csv_row(
+                    out / "val_log.csv", {"step": state["step"], "agreement": score, "wall_s": state["wall_s"]}
+                )
                 if score > state["best_agreement"]:
                     state["best_agreement"] = score
                     save_goal_net(model, out / "best.safetensors")

@@ -17,7 +17,6 @@ and the path at 95 % coverage; the best (most successes, then the shortest mean 
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -35,6 +34,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 from torch import nn
 
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
 from edge_explorer.sim.env import EnvConfig
 from edge_explorer.sim.goal_env import NUM_GOALS, GoalEnv
@@ -168,15 +168,6 @@ def evaluate(net: GoalNet, config: PPOConfig) -> dict[str, float]:
     return {"successes": successes, "mean_path_m": float(np.mean(paths)) if paths else float("inf")}
 
 
-def _append_csv(path: Path, row: dict) -> None:
-    new = not path.exists()
-    with path.open("a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(row))
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
 class _Progress(BaseCallback):
     """Checkpoints, val evaluations and the best network (see the module docstring)."""
 
@@ -201,7 +192,7 @@ class _Progress(BaseCallback):
         if done % self.config.eval_every < self.training_env.num_envs:
             net = self.model.policy.goal_net
             result = evaluate(net, self.config)
-            _append_csv(self.out / "val_log.csv", {"decisions": done, **result, "wall_s": self._wall()})
+            append_csv_row(self.out / "val_log.csv", {"decisions": done, **result, "wall_s": self._wall()})
             score = [result["successes"], -result["mean_path_m"]]
             if score > self.state["best"]:
                 self.state["best"] = score

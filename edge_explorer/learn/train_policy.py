@@ -31,7 +31,6 @@ returns stay of order one for the value head that shares the convolutional featu
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import multiprocessing
@@ -50,6 +49,7 @@ import torch
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn import toml_config
+from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.policy_net import PolicyNetConfig, save_policy, sb3_policy_kwargs
 from edge_explorer.mapping.ego import NUM_ACTIONS
 from edge_explorer.predict.thresholding import ThresholdConfig
@@ -407,7 +407,7 @@ def behaviour_clone(model: Any, demos: Demonstrations, config: PolicyTrainConfig
             optimizer.step()
             losses.append(actor_loss.item())
         row = {"epoch": epoch + 1, "train_nll": float(np.mean(losses)), **_bc_accuracy(policy, demos, held_idx, device)}
-        _append_csv(log_csv, row)
+        append_csv_row(log_csv, row)
         result.update(row)
     policy.set_training_mode(False)
     return result
@@ -490,15 +490,6 @@ def _write_atomically(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def _append_csv(path: Path, row: dict) -> None:
-    new = not path.exists()
-    with path.open("a", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(row))
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
 class _Run:
     """What the callbacks share: output folder, state, evaluation plans, the wall-clock budget."""
 
@@ -516,7 +507,7 @@ class _Run:
     def evaluate(self, model: Any, stage: str, predictor: Predictor | None = None) -> dict:
         result = evaluate(model.policy, self.val_rasters, self.config, predictor)
         row = {"stage": stage, "timesteps": self.state.timesteps, "wall_s": round(self.elapsed(), 1), **result}
-        _append_csv(self.out / "eval.csv", row)
+        append_csv_row(self.out / "eval.csv", row)
         score = list(eval_score(result))
         metadata = {"stage": stage, "timesteps": str(self.state.timesteps)}
         snapshots = self.out / "evaluated"

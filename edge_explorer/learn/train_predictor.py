@@ -31,7 +31,6 @@ with the very batches the uninterrupted run would have seen. No pickles: tensors
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
@@ -47,6 +46,7 @@ import torch.nn.functional as F
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn import toml_config
+from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
 from edge_explorer.mapping.metrics import map_metrics
@@ -235,15 +235,6 @@ def load_checkpoint(out: Path, model: UNet, optimizer: torch.optim.Optimizer, de
     return TrainState(**payload)
 
 
-def _append_csv(path: Path, row: dict) -> None:
-    new = not path.exists()
-    with path.open("a", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(row))
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
 # ---- the loop ----------------------------------------------------------------------------------------------------
 def train(
     config: PredictorTrainConfig,
@@ -331,7 +322,7 @@ def train(
         bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
 
         if state.step % config.log_every_steps == 0:
-            _append_csv(
+            append_csv_row(
                 out / "train_log.csv",
                 {
                     "step": state.step,
@@ -346,7 +337,7 @@ def train(
         if state.step % config.val_every_steps == 0 or state.step == config.total_steps:
             val = validate(model, val_set, val_indices, config.batch_size, device)
             state.last_val = {"step": state.step, **val}
-            _append_csv(out / "val_log.csv", {"step": state.step, "samples": state.samples, **val})
+            append_csv_row(out / "val_log.csv", {"step": state.step, "samples": state.samples, **val})
             tqdm.write(
                 f"step {state.step}: val loss {val['val_loss']:.4f}, F1 {val['val_f1']:.4f} "
                 f"(observed only {val['val_f1_observed']:.4f})"
