@@ -1,5 +1,5 @@
 # The README's two commands: `make demo` (the main job) and `make test`. Each creates .venv on a fresh clone.
-# `make venv` installs every extra (training, export, dev) for the benchmarks and tools.
+# `make venv` installs every extra (training, export, dev, cluster) for the benchmarks and tools.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -18,12 +18,12 @@ $(VENV)/.stamp-core: pyproject.toml | $(BIN)/python
 # MAVProxy is a real ground station for the loopback test; its full install would replace opencv-headless and pull
 # vtk, so it goes in without its dependencies (pyserial is the only one it needs headless).
 $(VENV)/.stamp-test: pyproject.toml | $(BIN)/python
-	$(PIP) -e '.[dev,bench,train]'
+	$(PIP) -e '.[dev,bench,train,cluster]'
 	$(PIP) --no-deps mavproxy==1.8.75 pyserial
 	touch $@
 
 $(VENV)/.stamp-all: pyproject.toml | $(BIN)/python
-	$(PIP) -e '.[dev,bench,train,export]'
+	$(PIP) -e '.[dev,bench,train,export,cluster]'
 	touch $@
 
 # The TFLite converter (onnx2tf) pins numpy 1.26 and TensorFlow 2.19 (~2.6 GB), so it lives in its own venv that

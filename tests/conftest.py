@@ -41,3 +41,12 @@ def two_room_plan(door: bool = True, name: str = "two-rooms") -> FloorPlan:
 @pytest.fixture
 def plan() -> FloorPlan:
     return two_room_plan()
+
+
+@pytest.fixture(scope="module")
+def ray_cluster() -> Iterator[None]:
+    """A local Ray cluster of 2 CPUs on loopback for one test module (``--ray auto`` connects to it)."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install -e '.[cluster]')")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
