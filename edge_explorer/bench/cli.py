@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from edge_explorer.cli import positive_int
+from edge_explorer.cluster.units import add_ray_argument
 
 DESCRIPTION = "Exploration benchmark: path length to 95 % coverage per building and method, coverage figure."
 
@@ -43,6 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--policy", help="the drl methods' policy: a model folder with card.json (e.g. models/policy) or a .safetensors"
     )
     explore.add_argument("--workers", type=positive_int, help="processes (default: all cores)")
+    add_ray_argument(explore)
     explore.add_argument("--out-dir", type=Path, help="one JSON record per finished run; a rerun skips recorded runs")
     explore.add_argument("--json", type=Path, help="write every figure here")
     explore.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
@@ -70,7 +72,7 @@ def _explore(args: argparse.Namespace) -> int:
     def progress(iterable, total):
         return tqdm(iterable, total=total, desc="bench explore", unit="run", mininterval=1.0)
 
-    records = bench.run_benchmark(rasters, specs, workers, args.out_dir, progress)
+    records = bench.run_benchmark(rasters, specs, workers, args.out_dir, progress, args.ray)
     summary = bench.summarize(records, methods)
     paired = bench.paired_differences(records, methods)
     table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)

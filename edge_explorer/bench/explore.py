@@ -24,12 +24,10 @@ from __future__ import annotations
 import importlib
 import json
 import math
-import multiprocessing
 import os
 import time
 import zlib
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -37,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from edge_explorer.backends.card import CARD_FILE
+from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.baselines import PLANNERS
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
@@ -372,10 +371,12 @@ def run_benchmark(
     workers: int = 1,
     out_dir: Path | None = None,
     progress: Callable[[Iterable[Any], int], Iterable[Any]] | None = None,
+    ray: str | None = None,
 ) -> list[dict[str, Any]]:
     """Records of every spec, in spec order; runs recorded in ``out_dir`` with the same spec are not flown again.
 
-    ``progress`` wraps the iterator of finished runs (e.g. a tqdm bar): ``progress(iterable, total)``.
+    ``progress`` wraps the iterator of finished runs (e.g. a tqdm bar): ``progress(iterable, total)``. The runs go
+    to ``workers`` processes, or with ``ray`` (``"auto"`` or an address) to Ray tasks; each is recorded as it ends.
     """
     by_name = {r.name: r for r in rasters}
     records: dict[int, dict[str, Any]] = {}
@@ -389,21 +390,14 @@ def run_benchmark(
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     tasks = [(by_name[specs[k].plan], specs[k]) for k in todo]
-
-    def finished(results: Iterable[dict[str, Any]]) -> None:
-        wrapped = progress(results, len(todo)) if progress is not None else results
-        for k, record in zip(todo, wrapped, strict=True):
-            records[k] = record
-            if out_dir is not None:
-                (out_dir / specs[k].record_name).write_text(json.dumps(record, separators=(",", ":")) + "\n")
-
-    if workers <= 1 or len(tasks) <= 1:
-        finished(map(_run_task, tasks))
-    else:
-        # Fresh interpreters ("spawn"): forking a parent whose opencv thread pool is running can deadlock the child.
-        context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_single_thread_worker) as pool:
-            finished(pool.map(_run_task, tasks, chunksize=1))
+    # Fresh interpreters ("spawn"): forking a parent whose opencv thread pool is running can deadlock the child.
+    results = map_units(
+        _run_task, tasks, workers=workers, ray=ray, initializer=_single_thread_worker, start_method="spawn"
+    )
+    for j, record in progress(results, len(todo)) if progress is not None else results:
+        records[todo[j]] = record
+        if out_dir is not None:
+            (out_dir / specs[todo[j]].record_name).write_text(json.dumps(record, separators=(",", ":")) + "\n")
     return [records[k] for k in range(len(specs))]
 
 

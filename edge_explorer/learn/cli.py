@@ -9,6 +9,7 @@ import argparse
 from pathlib import Path
 
 from edge_explorer.cli import positive_int
+from edge_explorer.cluster.units import add_ray_argument
 
 DESCRIPTION = "Map predictor: collect training samples, train the U-Net, ship it with its model card."
 
@@ -48,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="share of flights scanned with a noise-free sensor (default 0: every flight has the training noise)",
     )
     data.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    add_ray_argument(data)
     data.set_defaults(func=_predictor_data)
 
     pred = tsub.add_parser(
@@ -168,6 +170,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="sensor noise: probability that each neighbour of a detected wall is labelled occupied (default 0.1, "
         "as in training; 0 shows what the noise costs)",
     )
+    add_ray_argument(evp)
     evp.set_defaults(func=_eval_predictor)
 
     evpol = esub.add_parser(
@@ -183,6 +186,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     evpol.add_argument("--max-steps", type=positive_int, default=1500, help="step cap per run (default 1500)")
     evpol.add_argument("--predictor", help="fly drl+pred and frontier+pred with this predictor (as bench explore)")
     evpol.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    add_ray_argument(evpol)
     evpol.add_argument("--json", type=Path, required=True, help="write the figures here")
     evpol.add_argument("--markdown", type=Path, help="also write the table here")
     evpol.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
@@ -254,6 +258,7 @@ def _predictor_data(args: argparse.Namespace) -> int:
         config,
         args.plans_per_shard,
         args.workers,
+        args.ray,
     )
     print(
         f"{report.samples} samples from {report.plans} plans in {report.seconds:.0f} s "
@@ -321,7 +326,7 @@ def _eval_policy(args: argparse.Namespace) -> int:
         return tqdm(iterable, total=total, desc="eval policy", unit="run", mininterval=1.0)
 
     records, methods = evaluate_buildings(
-        args.model, rasters, args.runs, args.seed, config, args.predictor, args.workers, progress
+        args.model, rasters, args.runs, args.seed, config, args.predictor, args.workers, progress, args.ray
     )
     summary = bench.summarize(records, methods)
     ratios = path_ratios(summary, methods)

@@ -18,15 +18,14 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-import multiprocessing
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from edge_explorer.bench import explore as bench
+from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.policy_net import TorchPolicy, load_policy_module
 from edge_explorer.sim.env import Predictor
@@ -68,9 +67,10 @@ def evaluate_buildings(
     predictor: str | None = None,
     workers: int = 1,
     progress: Callable[[Iterable[Any], int], Iterable[Any]] | None = None,
+    ray: str | None = None,
 ) -> tuple[list[dict], list[str]]:
     """Records of the policy and of the frontier baseline (with ``+pred`` both when ``predictor`` is given) on the
-    benchmark's specs; returns (records, method names)."""
+    benchmark's specs, flown in ``workers`` processes or with ``ray`` as Ray tasks; returns (records, method names)."""
     config = config or bench.BenchConfig()
     suffix = bench.PRED_SUFFIX if predictor else ""
     methods = ["drl" + suffix, BASELINE + suffix]
@@ -80,13 +80,17 @@ def evaluate_buildings(
         specs += [dataclasses.replace(spec, method=methods[0]), spec]
     by_name = {r.name: r for r in rasters}
     tasks = [(by_name[s.plan], s) for s in specs]
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(str(weights), predictor)
-    ) as pool:
-        results = pool.map(_task, tasks, chunksize=1)
-        records = list(progress(results, len(tasks)) if progress is not None else results)
-    return records, methods
+    results = map_units(
+        _task,
+        tasks,
+        workers=workers,
+        ray=ray,
+        initializer=_init_worker,
+        initargs=(str(weights), predictor),
+        start_method="spawn",
+    )
+    records: dict[int, dict] = dict(progress(results, len(tasks)) if progress is not None else results)
+    return [records[k] for k in range(len(tasks))], methods
 
 
 def path_ratios(summary: dict[str, Any], methods: Sequence[str]) -> dict[str, float | None]:

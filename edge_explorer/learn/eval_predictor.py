@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import hashlib
 import math
 import time
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_explorer.backends.card import CARD_FILE
+from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.predictor_data import (
     DEFAULT_SENSOR,
@@ -47,6 +49,7 @@ from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.env import Predictor
 from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.world.raster import PlanRaster
 
 REPORT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95, 0.98)
 BIN_WIDTH = 0.005  # a scan is scored when its true coverage enters a new bin of this width
@@ -179,29 +182,58 @@ def plot_summary(summary: dict, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+_WORKER_PREDICTORS: dict[str, Predictor] = {}
+
+
+def _evaluate_unit(
+    predictor: Predictor | str,
+    explorer_name: str,
+    seed: int,
+    thresholds: ThresholdConfig,
+    sensor: SensorConfig,
+    unit: tuple[int, PlanRaster],
+) -> PlanCurve:
+    """Plan ``k`` of an evaluation; a predictor reference is loaded once per process (a Ray worker's)."""
+    k, raster = unit
+    if isinstance(predictor, str):
+        if predictor not in _WORKER_PREDICTORS:
+            from edge_explorer.bench.explore import load_predictor
+
+            _WORKER_PREDICTORS[predictor] = load_predictor(predictor)
+        predictor = _WORKER_PREDICTORS[predictor]
+    rng = np.random.default_rng([seed, k])
+    return evaluate_plan(
+        Scene.from_raster(raster), predictor, make_explorer(explorer_name), rng, thresholds, sensor=sensor
+    )
+
+
 def evaluate(
     plans_ref: str,
-    predictor: Predictor,
+    predictor: Predictor | str,
     explorer_name: str = "random-goal",
     seed: int = 0,
     limit: int | None = None,
     thresholds: ThresholdConfig = DEFAULT_THRESHOLDS,
     sensor: SensorConfig = DEFAULT_SENSOR,
+    ray: str | None = None,
 ) -> dict:
-    """Fly and score every plan of ``plans_ref``; plan ``k`` uses the seed sequence (seed, k)."""
+    """Fly and score every plan of ``plans_ref``; plan ``k`` uses the seed sequence (seed, k).
+
+    ``predictor`` is a predictor or a reference for :func:`~edge_explorer.bench.explore.load_predictor`; with ``ray``
+    (``"auto"`` or an address) the plans are Ray tasks, each loading the predictor from its reference."""
     from tqdm import tqdm
 
     from edge_explorer.world.catalog import load_buildings
 
+    if ray is not None and not isinstance(predictor, str):
+        raise ValueError("with ray, pass the predictor as a reference (a path) that every worker can load")
     rasters = load_buildings(plans_ref)[:limit]
     explorer = make_explorer(explorer_name)
     t0 = time.perf_counter()
-    curves = [
-        evaluate_plan(
-            Scene.from_raster(raster), predictor, explorer, np.random.default_rng([seed, k]), thresholds, sensor=sensor
-        )
-        for k, raster in enumerate(tqdm(rasters, desc="eval predictor", unit="plan"))
-    ]
+    unit = functools.partial(_evaluate_unit, predictor, explorer_name, seed, thresholds, sensor)
+    finished = map_units(unit, list(enumerate(rasters)), ray=ray)
+    by_plan = dict(tqdm(finished, total=len(rasters), desc="eval predictor", unit="plan"))
+    curves = [by_plan[k] for k in range(len(rasters))]
     return {
         "plans": plans_ref,
         "n_plans": len(curves),
@@ -227,7 +259,8 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     predictor = load_predictor(str(args.model))
     weights = args.model / CARD_FILE if args.model.is_dir() else args.model
     sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=args.occupied_noise)
-    report = evaluate(args.plans, predictor, args.explorer, args.seed, args.limit, sensor=sensor)
+    reference = str(args.model) if args.ray else predictor  # Ray workers load their own
+    report = evaluate(args.plans, reference, args.explorer, args.seed, args.limit, sensor=sensor, ray=args.ray)
     report = {"model": str(args.model), "model_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(), **report}
     write_json(args.json, report)
     if args.plot:

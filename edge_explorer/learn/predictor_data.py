@@ -44,7 +44,6 @@ import math
 import os
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
@@ -53,6 +52,7 @@ import numpy as np
 import torch
 from numba import njit
 
+from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS, pad_shift
 from edge_explorer.mapping.metrics import map_metrics
@@ -621,8 +621,12 @@ def generate_predictor_data(
     config: SampleConfig = SampleConfig(),
     plans_per_shard: int = 50,
     workers: int = 1,
+    ray: str | None = None,
 ) -> DataReport:
-    """Write sample shards for each split in ``plan_counts`` (e.g. ``{"train": 6000, "val": 200}``), resumably."""
+    """Write sample shards for each split in ``plan_counts`` (e.g. ``{"train": 6000, "val": 200}``), resumably.
+
+    The shards go to ``workers`` processes, or with ``ray`` (``"auto"`` or an address) to Ray tasks, which read
+    ``plans_dir`` and write ``out_dir`` themselves: on a cluster both must be mounted at the same path everywhere."""
     from tqdm import tqdm
 
     manifest = {
@@ -648,13 +652,9 @@ def generate_predictor_data(
     t0 = time.perf_counter()
     samples = plans = 0
     with tqdm(total=sum(j.stop - j.first for j in todo), unit="plan", desc="predictor samples") as bar:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(_run_job, j): j for j in todo}
-            for fut in as_completed(futures):
-                result = fut.result()
-                samples += result["samples"]
-                plans += result["plans"]
-                job = futures[fut]
-                bar.update(job.stop - job.first)
-                bar.set_postfix(samples=samples)
+        for k, result in map_units(_run_job, todo, workers=workers, ray=ray):
+            samples += result["samples"]
+            plans += result["plans"]
+            bar.update(todo[k].stop - todo[k].first)
+            bar.set_postfix(samples=samples)
     return DataReport(samples, plans, len(jobs) - len(todo), time.perf_counter() - t0)

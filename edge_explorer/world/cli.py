@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from edge_explorer.cli import positive_int
+from edge_explorer.cluster.units import add_ray_argument
 
 DESCRIPTION = "Floor plans: generate the dataset, show a plan, check plan files, draw a contact sheet."
 
@@ -34,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     gen.add_argument("--out", type=Path, required=True, help="output folder (resumes if it exists)")
     gen.add_argument("--split", type=_split_arg, default=(45000, 4900, 100), help="train,val,test ratio")
     gen.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: all cores)")
+    add_ray_argument(gen)
     gen.add_argument("--json", type=Path, help="write the run's figures here")
     gen.set_defaults(func=_generate)
 
@@ -60,12 +62,13 @@ def _generate(args: argparse.Namespace) -> int:
     from edge_explorer.world.dataset import generate_dataset
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    report = generate_dataset(args.out, args.count, args.seed, args.split, args.workers)
+    report = generate_dataset(args.out, args.count, args.seed, args.split, args.workers, args.ray)
     for s in report.skipped:
         print(f"skipped {s['index']} (seed {s['seed']}): {s['error']}", file=sys.stderr)
+    engine = f"Ray {args.ray}" if args.ray else f"{args.workers} workers"
     print(
         f"{report.plans} plans generated and validated in {report.seconds:.1f} s "
-        f"({report.plans_per_s:.1f} plans/s, {args.workers} workers); {len(report.skipped)} seeds skipped; "
+        f"({report.plans_per_s:.1f} plans/s, {engine}); {len(report.skipped)} seeds skipped; "
         f"{report.shards_done_before} shards were already done"
     )
     write_json(

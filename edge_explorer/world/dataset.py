@@ -20,12 +20,12 @@ import json
 import os
 import time
 from collections.abc import Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError, PlanError
 from edge_explorer.world.plan import FloorPlan
 
@@ -139,9 +139,17 @@ class GenerationReport:
 
 
 def generate_dataset(
-    out_dir: Path, count: int, dataset_seed: int, split_fractions: tuple[int, ...], workers: int
+    out_dir: Path,
+    count: int,
+    dataset_seed: int,
+    split_fractions: tuple[int, ...],
+    workers: int,
+    ray: str | None = None,
 ) -> GenerationReport:
-    """Generate ``count`` plans split in the ratio ``split_fractions`` into shards, in parallel, resumably."""
+    """Generate ``count`` plans split in the ratio ``split_fractions`` into shards, in parallel, resumably.
+
+    The shards go to ``workers`` processes, or with ``ray`` (``"auto"`` or an address) to Ray tasks, which write
+    into ``out_dir`` themselves: on a cluster it must be a folder every node mounts at the same path."""
     from tqdm import tqdm
 
     from edge_explorer.world.generator import GENERATOR_VERSION
@@ -161,15 +169,11 @@ def generate_dataset(
     t0 = time.perf_counter()
     plans, skipped = 0, []
     with tqdm(total=sum(j.stop - j.start for j in todo), unit="plan", desc="plans") as bar:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(_run_shard, j): j for j in todo}
-            for fut in as_completed(futures):
-                result = fut.result()
-                plans += result["plans"]
-                skipped += result["skipped"]
-                job = futures[fut]
-                bar.update(job.stop - job.start)
-                bar.set_postfix(plans_per_s=f"{plans / max(time.perf_counter() - t0, 1e-9):.0f}")
+        for k, result in map_units(_run_shard, todo, workers=workers, ray=ray):
+            plans += result["plans"]
+            skipped += result["skipped"]
+            bar.update(todo[k].stop - todo[k].start)
+            bar.set_postfix(plans_per_s=f"{plans / max(time.perf_counter() - t0, 1e-9):.0f}")
     return GenerationReport(plans, skipped, len(jobs) - len(todo), time.perf_counter() - t0)
 
 
