@@ -6,6 +6,7 @@ Handlers import torch lazily, so ``edge-explorer --help`` works without the ``tr
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from edge_explorer.cli import positive_int
@@ -271,6 +272,8 @@ def _train_predictor(args: argparse.Namespace) -> int:
     from edge_explorer.learn.train_predictor import load_config, train
 
     state = train(load_config(args.config), args.out, args.resume, args.device, args.config, args.max_steps)
+    if os.environ.get("RANK", "0") != "0":
+        return 0  # under torchrun, rank 0 reports
     print(
         f"step {state.step}: {state.samples} samples, {state.wall_s / 3600:.2f} h of training; best val score "
         f"{state.best_score:.4f} (mean F1 from 50 % coverage up) at step {state.best_step} → "

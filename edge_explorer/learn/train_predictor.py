@@ -27,6 +27,10 @@ Run folder ``OUT``::
 
 Data order is a function of (seed, epoch) and augmentation of (seed, epoch, sample), so a resumed run continues
 with the very batches the uninterrupted run would have seen. No pickles: tensors in safetensors, the rest in JSON.
+
+Under ``torchrun`` (``WORLD_SIZE`` > 1) the same loop runs data-parallel (:mod:`edge_explorer.learn.ddp`): the config's
+batch stays the global batch, each rank takes its share of it, the schedule and the files are the same, and rank 0
+alone validates and writes; ``--resume`` works with any process count.
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ import torch
 import torch.nn.functional as F
 
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.learn import toml_config
+from edge_explorer.learn import ddp, toml_config
 from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
@@ -126,10 +130,18 @@ def learning_rate(config: PredictorTrainConfig, step: int) -> float:
     return 0.5 * config.learning_rate * (1.0 + math.cos(math.pi * min(progress, 1.0)))
 
 
+def weighted_bce_terms(
+    logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(Σ w·BCE(σ(logits), target), Σ w) over the batch."""
+    bce = F.binary_cross_entropy_with_logits(logits, target, reduction="none")
+    return (weight * bce).sum(), weight.sum()
+
+
 def weighted_bce(logits: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     """Σ w·BCE(σ(logits), target) / Σ w over the batch."""
-    bce = F.binary_cross_entropy_with_logits(logits, target, reduction="none")
-    return (weight * bce).sum() / weight.sum().clamp_min(1e-6)
+    numerator, weight_sum = weighted_bce_terms(logits, target, weight)
+    return numerator / weight_sum.clamp_min(1e-6)
 
 
 def batch(dataset: PredictorDataset, indices: list[int], device: str) -> tuple[torch.Tensor, ...]:
@@ -246,13 +258,15 @@ def train(
 ) -> TrainState:
     """Train (or, with ``resume``, continue training) the predictor into ``out``; returns the final state.
 
-    ``max_steps`` stops after that many steps of this call (checkpointed), for time-boxed sessions.
+    ``max_steps`` stops after that many steps of this call (checkpointed), for time-boxed sessions. Under
+    torchrun every rank calls this; only rank 0 validates and writes into ``out``.
     """
     from tqdm import tqdm
 
     out = Path(out)
     if device == "cuda" and not torch.cuda.is_available():
         raise EdgeExplorerError("--device cuda: no CUDA device is available")
+    ranks = ddp.init_from_env(device, config.batch_size)
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     out.mkdir(parents=True, exist_ok=True)
@@ -264,7 +278,7 @@ def train(
             raise EdgeExplorerError(f"{out}: the run was started with another config ({saved_config}); use it")
     elif (out / "state.json").exists():
         raise EdgeExplorerError(f"{out} already holds a run; pass --resume to continue it or choose a new --out")
-    else:
+    elif ranks.is_main:
         saved_config.write_text(json.dumps(config.to_dict(), indent=1))
         if config_path is not None:
             shutil.copyfile(config_path, out / "config.toml")
@@ -291,9 +305,10 @@ def train(
             f"holds {len(train_set)}; resume with the same data or start a new run"
         )
     model.train()
+    net = ddp.data_parallel_logits(model, device) if ranks.distributed else model.logits
     stop_step = config.total_steps if max_steps is None else min(config.total_steps, state.step + max_steps)
 
-    bar = tqdm(total=stop_step, initial=state.step, unit="step", desc="train predictor")
+    bar = tqdm(total=stop_step, initial=state.step, unit="step", desc="train predictor", disable=not ranks.is_main)
     running_loss, running_n = 0.0, 0
     t_last = time.perf_counter()
     while state.step < stop_step:
@@ -302,11 +317,15 @@ def train(
         train_set.set_epoch(epoch)
         order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed * 100_003 + epoch))
         indices = order[position * config.batch_size : (position + 1) * config.batch_size].tolist()
-        x, target, weight = batch(train_set, indices, device)
+        x, target, weight = batch(train_set, ranks.shard(indices), device)
 
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, state.step)
-        loss = weighted_bce(model.logits(x), target, weight)
+        if ranks.distributed:
+            loss, loss_value = ddp.global_weighted_mean(*weighted_bce_terms(net(x), target, weight), ranks)
+        else:
+            loss = weighted_bce(net(x), target, weight)
+            loss_value = loss.item()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -316,10 +335,12 @@ def train(
         now = time.perf_counter()
         state.wall_s += now - t_last
         t_last = now
-        running_loss += loss.item()
+        running_loss += loss_value
         running_n += 1
         bar.update(1)
-        bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
+        bar.set_postfix(loss=f"{loss_value:.4f}", epoch=epoch)
+        if not ranks.is_main:
+            continue  # the other ranks only compute gradients
 
         if state.step % config.log_every_steps == 0:
             append_csv_row(
@@ -349,4 +370,5 @@ def train(
         if state.step % config.checkpoint_every_steps == 0 or state.step == stop_step:
             save_checkpoint(out, model, optimizer, state)
     bar.close()
+    ddp.finish(ranks)
     return state
