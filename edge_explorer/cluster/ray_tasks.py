@@ -116,11 +116,12 @@ def _results(
 
 
 def _result(ray: Any, ref: Any) -> Any:
-    """The task's value; a unit's own exception is re-raised as is, Ray giving up on a task is a one-line error."""
+    """The task's value; a unit's own exception is raised as itself (the worker's traceback chained to it), Ray
+    giving up on a task is a one-line error."""
     try:
         return ray.get(ref)
-    except ray.exceptions.RayTaskError:
-        raise
+    except ray.exceptions.RayTaskError as exc:
+        raise exc.cause from exc
     except ray.exceptions.RayError as exc:
         first_line = str(exc).strip().splitlines()[0]
         raise EdgeExplorerError(f"Ray gave up on a unit after its retries: {first_line}") from None

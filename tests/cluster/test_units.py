@@ -68,6 +68,19 @@ def test_ray_reruns_the_unit_of_a_killed_worker(tmp_path, ray_cluster):
     assert_each_unit_once(results)
 
 
+def refuse_odd(k: int) -> int:
+    if k % 2:
+        raise EdgeExplorerError(f"unit {k} is odd")
+    return k
+
+
+def test_a_units_error_reaches_the_caller_as_itself(ray_cluster):
+    for engine in ({"workers": 2, "start_method": "spawn"}, {"ray": "auto"}):  # spawn: no fork beside Ray
+        with pytest.raises(EdgeExplorerError) as raised:
+            list(map_units(refuse_odd, [0, 1, 2], **engine))
+        assert type(raised.value) is EdgeExplorerError and str(raised.value) == "unit 1 is odd"
+
+
 def test_an_unreachable_ray_address_is_a_one_line_error():
     pytest.importorskip("ray", reason="Ray is not installed (pip install -e '.[cluster]')")
     with pytest.raises(EdgeExplorerError, match="no Ray head answers there"):
