@@ -56,7 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pred = tsub.add_parser(
         "predictor",
         help="train the map predictor U-Net (BCE, AdamW; checkpoints, --resume)",
-        description="Train the map predictor from a TOML config; see edge_explorer/learn/configs/predictor.toml.",
+        description="Train the map predictor from a TOML config; see edge_explorer/learn/configs/predictor.toml. "
+        "Under torchrun (--nproc_per_node N) it trains data-parallel with the same global batch (docs/cluster.md).",
     )
     pred.add_argument("--config", type=Path, required=True, help="TOML config")
     pred.add_argument("--out", type=Path, required=True, help="run folder: checkpoints, log.csv, best model")
