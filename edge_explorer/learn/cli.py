@@ -120,6 +120,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ppo.add_argument("--envs", type=positive_int, default=2, help="environment worker processes (default 2)")
     ppo.add_argument("--out", type=Path, required=True, help="run folder")
     ppo.add_argument("--resume", action="store_true", help="continue the run in OUT")
+    add_ray_argument(ppo)
     ppo.set_defaults(func=_goal_ppo)
 
     ship = tsub.add_parser(
@@ -242,7 +243,7 @@ def _goal_ppo(args: argparse.Namespace) -> int:
     config = PPOConfig(
         init_weights=args.init, predictor=args.predictor, total_decisions=args.decisions, n_envs=args.envs
     )
-    decisions = train(config, args.out, resume=args.resume)
+    decisions = train(config, args.out, resume=args.resume, ray=args.ray)
     print(f"{decisions} decisions trained → {args.out} (best.safetensors, val_log.csv)")
     return 0
 

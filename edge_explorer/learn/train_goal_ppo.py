@@ -8,7 +8,9 @@ Invalid goals are masked by MaskablePPO from ``GoalEnv.action_masks``. The rewar
 on (phase 2) or off (phase 1, ``predictor = ""``); ``reward_scale`` only rescales it for learning.
 
 Rollouts run in ``n_envs`` worker processes (SubprocVecEnv; each loads the predictor on its exported backend) over
-the first ``train_plans`` plans of the train split. Every ``checkpoint_every`` decisions the SB3 model is saved to
+the first ``train_plans`` plans of the train split — or, with ``ray``, in ``n_envs`` Ray actors anywhere on a
+cluster (:class:`~edge_explorer.learn.ray_vec_env.RayVecEnv`; the learner stays in this process). Every
+``checkpoint_every`` decisions the SB3 model is saved to
 ``OUT/checkpoint.zip`` (SB3's format, for ``--resume`` inside runs/ only) and the network to
 ``OUT/latest.safetensors``; every ``eval_every`` decisions the deterministic policy flies ``eval_plans`` val plans
 through the benchmark (:func:`~edge_explorer.bench.explore.run_episode`) and ``OUT/val_log.csv`` records success
@@ -213,8 +215,9 @@ class _Progress(BaseCallback):
         (self.out / "state.json").write_text(json.dumps(self.state))
 
 
-def train(config: PPOConfig, out: Path, resume: bool = False) -> int:
-    """Run (or with ``resume`` continue) PPO into ``out``; returns the decisions trained on."""
+def train(config: PPOConfig, out: Path, resume: bool = False, ray: str | None = None) -> int:
+    """Run (or with ``resume`` continue) PPO into ``out``, the environments as Ray actors on the cluster at ``ray``
+    (``auto`` or a head's address) when given; returns the decisions trained on."""
     if resume != (out / "checkpoint.zip").exists():
         raise EdgeExplorerError(
             f"{out}: nothing to resume (no checkpoint.zip)" if resume else f"{out} already holds a run; use --resume"
@@ -222,7 +225,14 @@ def train(config: PPOConfig, out: Path, resume: bool = False) -> int:
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
     factories = [_make_env(config, k) for k in range(config.n_envs)]
-    venv = SubprocVecEnv(factories, start_method="spawn") if config.n_envs > 1 else DummyVecEnv(factories)
+    if ray is not None:
+        from edge_explorer.learn.ray_vec_env import RayVecEnv
+
+        venv = RayVecEnv(factories, ray)
+    elif config.n_envs > 1:
+        venv = SubprocVecEnv(factories, start_method="spawn")
+    else:
+        venv = DummyVecEnv(factories)
     try:
         if resume:
             model = MaskablePPO.load(out / "checkpoint.zip", env=venv, device="cpu")

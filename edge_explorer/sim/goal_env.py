@@ -40,10 +40,10 @@ NUM_GOALS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
 
 
 class _DecisionNeeded(Exception):  # noqa: N818 - a signal, not an error
-    """Raised inside the planner loop when it needs a goal from the agent."""
+    """Raised inside the planner loop when it needs a goal from the agent (carries the decision's view)."""
 
     def __init__(self, view: View, pose: Pose, decision: GoalDecision) -> None:
-        super().__init__("the planner loop needs a goal")
+        super().__init__(view, pose, decision)  # the constructor's arguments as args: it pickles (Ray, processes)
         self.view, self.pose, self.decision = view, pose, decision
 
 

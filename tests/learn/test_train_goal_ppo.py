@@ -71,3 +71,23 @@ def test_ppo_trains_checkpoints_and_resumes(tiny_plans, tmp_path):
     resumed = PPOConfig(**{**config.__dict__, "total_decisions": 8})
     assert train(resumed, run, resume=True) >= 8
     assert load_goal_net(run / "latest.safetensors").config == TINY_NET
+
+
+@pytest.mark.slow
+def test_ppo_collects_its_rollouts_from_ray_actors(tiny_plans, tmp_path, ray_cluster):
+    config = PPOConfig(
+        plans=str(tiny_plans),
+        train_plans=2,
+        val_first=0,
+        predictor="",
+        n_envs=2,
+        n_steps=2,
+        batch_size=4,
+        n_epochs=1,
+        total_decisions=4,
+        checkpoint_every=4,
+        eval_every=1000,
+        max_steps=150,
+    )
+    assert train(config, tmp_path / "ray", ray="auto") >= 4
+    assert (tmp_path / "ray" / "latest.safetensors").exists()
