@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.mapping.ego import OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
@@ -36,6 +37,7 @@ from edge_explorer.world.raster import PlanRaster
 
 DEMO_FORMAT = "edge-explorer/goal-demos"
 _CELLS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
+Record = tuple[np.ndarray, np.ndarray, int, np.ndarray, int]  # high, thres, last motion, flat valid mask, label
 
 
 class LabellingPlanner(PredictiveFrontier):
@@ -44,7 +46,7 @@ class LabellingPlanner(PredictiveFrontier):
     def __init__(self, policy: GoalPolicy | None = None, table: ActionTable | None = None) -> None:
         super().__init__(table=table)
         self.policy = policy
-        self.records: list[tuple[np.ndarray, np.ndarray, int, np.ndarray, int]] = []
+        self.records: list[Record] = []
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         expert = super().select_goal(view, pose)
@@ -70,7 +72,7 @@ class DemoConfig:
 
 def fly_demo(
     raster: PlanRaster, predictor: Predictor | None, seed: int, config: DemoConfig, policy: GoalPolicy | None = None
-) -> list[tuple[np.ndarray, np.ndarray, int, np.ndarray, int]]:
+) -> list[Record]:
     """One labelled episode on ``raster`` from a random start (see the module docstring)."""
     env = ExplorationEnv([raster], EnvConfig(coverage_goal=1.0, max_steps=config.max_steps), predictor=predictor)
     planner = LabellingPlanner(policy, env.table)
@@ -88,16 +90,14 @@ def fly_demo(
     return planner.records
 
 
-def write_demos(path: Path, records: Sequence[tuple[np.ndarray, np.ndarray, int, np.ndarray, int]]) -> None:
-    """One shard of records (see the module docstring for the arrays)."""
-    size = (0, 0)
-    if records:
-        size = records[0][0].shape
+def write_demos(path: Path, records: Sequence[Record]) -> None:
+    """One shard of records (see the module docstring for the arrays), written atomically."""
+    window = (OBSERVATION_WINDOW_CELLS, OBSERVATION_WINDOW_CELLS)
     arrays = {
-        "high": np.stack([r[0] for r in records]) if records else np.zeros((0, *size), np.int8),
-        "thres": np.stack([r[1] for r in records]) if records else np.zeros((0, *size), np.int8),
+        "high": np.array([r[0] for r in records], dtype=np.int8).reshape(-1, *window),
+        "thres": np.array([r[1] for r in records], dtype=np.int8).reshape(-1, *window),
         "last_action": np.array([r[2] for r in records], dtype=np.int8),
-        "mask": np.packbits(np.stack([r[3] for r in records]), axis=1) if records else np.zeros((0, 436), np.uint8),
+        "mask": np.packbits(np.array([r[3] for r in records], dtype=bool).reshape(-1, _CELLS), axis=1),
         "label": np.array([r[4] for r in records], dtype=np.int32),
     }
     tmp = path.with_suffix(".tmp.npz")
@@ -185,10 +185,9 @@ def _run_job(job: DemoJob) -> dict:
         records += fly_demo(raster, predictor, seed, job.config, policy)
     job.out.parent.mkdir(parents=True, exist_ok=True)
     write_demos(job.out, records)
-    marker = {"format": DEMO_FORMAT, "decisions": len(records), "seconds": time.perf_counter() - t0, **asdict(job)}
-    marker["out"] = str(job.out)
-    marker["config"] = asdict(job.config)
-    job.marker.write_text(json.dumps(marker, default=str))
+    job_fields = json.loads(json.dumps(asdict(job), default=str))  # paths as text
+    marker = {"format": DEMO_FORMAT, "decisions": len(records), "seconds": time.perf_counter() - t0, **job_fields}
+    job.marker.write_text(json.dumps(marker))
     return marker
 
 
