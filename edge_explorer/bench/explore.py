@@ -38,6 +38,7 @@ from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.baselines import PLANNERS
+from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster, clearance_m
 
@@ -225,7 +226,8 @@ def run_episode(
     A planner method decides from the observed (and fused) map; the ``drl`` methods fly a learned goal policy through
     the same planner loop, or call a primitive-action ``policy`` on the observation."""
     method = spec.method.removesuffix(PRED_SUFFIX)
-    config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps)  # the run, not the env, decides when to stop
+    # the run, not the env, decides when to stop; the predictor's card may carry calibrated thresholds (DESIGN.md §5)
+    config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
     if method == DRL:
         if policy is None:

@@ -115,7 +115,7 @@ class Calibration:
         raise KeyError(f"({thresholds.t_f_max}, {thresholds.t_o}) is not a candidate pair")
 
     def card_entry(self) -> dict[str, Any]:
-        """The model card's ``thresholds`` key (read back by :func:`edge_explorer.predict.predictor.card_thresholds`)."""
+        """The model card's ``thresholds`` key (read by :func:`edge_explorer.predict.predictor.card_thresholds`)."""
         return {
             "t_f_max": self.chosen.t_f_max,
             "t_o": self.chosen.t_o,

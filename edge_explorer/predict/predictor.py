@@ -15,28 +15,57 @@ so the TFLite graph needs no transpose op of its own (Edge TPU and XNNPACK run i
 moved back to channels-first before decoding. A :class:`PredictorRuntime` is also the ``window → probabilities``
 callable the simulator and the benchmark take (:data:`edge_explorer.sim.env.Predictor`), so an exported model can be
 flown in the training simulator unchanged.
+
+Its :attr:`PredictorRuntime.thresholds` are those every reader thresholds this model's output with (the daemon, the
+simulator, the benchmark): the card's calibrated ``thresholds`` when it has them (DESIGN.md §5: they win; written by
+``edge-explorer train calibrate-predictor``), the defaults of :class:`~edge_explorer.predict.thresholding.
+ThresholdConfig` otherwise.
 """
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 
+from edge_explorer.backends.card import CARD_FILE, CardError
 from edge_explorer.backends.chain import LoadedModel
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import Cell, pad_shift, unshift
 from edge_explorer.predict.encoding import INPUT_CHANNELS, decode_probabilities, encode_windows
+from edge_explorer.predict.thresholding import ThresholdConfig
+
+THRESHOLDS_KEY = "thresholds"  # the card's calibrated {"t_f_max", "t_o", ...}
 
 
 class PredictorModelError(EdgeExplorerError):
     """The loaded model does not have the predictor's input and output layout."""
 
 
-class PredictorRuntime:
-    """An exported map predictor ready to run (see the module docstring)."""
+def card_thresholds(card: Path) -> ThresholdConfig:
+    """The thresholds of a predictor's card (``card.json`` or its folder): its calibrated ``thresholds`` when it has
+    them, the defaults otherwise. Raises :class:`CardError` if the card is unreadable or its values are invalid."""
+    if card.is_dir():
+        card = card / CARD_FILE
+    try:
+        entry = json.loads(card.read_text()).get(THRESHOLDS_KEY)
+    except (OSError, ValueError, AttributeError) as exc:
+        raise CardError(f"{card}: cannot read the predictor's thresholds ({exc})") from exc
+    if entry is None:
+        return ThresholdConfig()
+    try:
+        return ThresholdConfig(t_f_max=float(entry["t_f_max"]), t_o=float(entry["t_o"]))
+    except (TypeError, KeyError, ValueError) as exc:
+        raise CardError(f"{card}: '{THRESHOLDS_KEY}' needs numbers t_f_max <= t_o in [0, 1] ({exc!r})") from exc
 
-    def __init__(self, model: LoadedModel) -> None:
+
+class PredictorRuntime:
+    """An exported map predictor ready to run, with its thresholds (see the module docstring)."""
+
+    def __init__(self, model: LoadedModel, thresholds: ThresholdConfig | None = None) -> None:
+        """``thresholds``: None reads them from the card beside the loaded artifact (:func:`card_thresholds`)."""
         inputs, outputs = model.backend.inputs, model.backend.outputs
         if len(inputs) != 1 or len(outputs) != 1:
             raise PredictorModelError(
@@ -60,6 +89,7 @@ class PredictorRuntime:
                 f"{self.window_cells}×{self.window_cells} probability map"
             )
         self.model = model
+        self.thresholds = card_thresholds(model.artifact.parent) if thresholds is None else thresholds
         self._input_name = inputs[0].name
         self._output_name = outputs[0].name
 
@@ -77,3 +107,9 @@ class PredictorRuntime:
         """float32 probabilities on the grid of ``low_codes`` (0.20 m observed map), NaN outside the window."""
         window = pad_shift(low_codes, robot_cell, self.window_cells)
         return unshift(self(window), robot_cell, low_codes.shape, fill=np.float32(np.nan))
+
+
+def thresholds_of(predictor: object) -> ThresholdConfig:
+    """The thresholds for ``predictor``'s output: a :class:`PredictorRuntime`'s own (its card's), the defaults for any
+    other predictor (torch weights, test doubles)."""
+    return predictor.thresholds if isinstance(predictor, PredictorRuntime) else ThresholdConfig()

@@ -215,3 +215,25 @@ def test_drl_methods_fly_a_policy_on_the_observation(rooms):
     assert record["curves"]["coverage"][-1] > record["curves"]["coverage"][0]  # turning in place still sees more
     with pytest.raises(EdgeExplorerError, match="--policy"):
         explore.load_policy("not-a-model")
+
+
+def test_runs_threshold_with_the_predictor_s_calibrated_thresholds(rooms, tmp_path, monkeypatch):
+    from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
+    from edge_explorer.predict.thresholding import ThresholdConfig
+    from tests.predict.test_predictor import add_thresholds, write_predictor_model
+
+    card = write_predictor_model(tmp_path / "predictor", window=PREDICTOR_WINDOW_CELLS)
+    add_thresholds(card, {"t_f_max": 0.1, "t_o": 0.9})
+    used = []
+
+    class RecordingEnv(explore.ExplorationEnv):
+        def __init__(self, rasters, config, **kwargs):
+            used.append(config.thresholds)
+            super().__init__(rasters, config, **kwargs)
+
+    config = explore.BenchConfig(max_steps=2)
+    spec = explore.plan_specs([rooms], ["frontier+pred"], runs=1, seed=0, config=config, predictor=str(card))[0]
+    monkeypatch.setattr(explore, "ExplorationEnv", RecordingEnv)
+    explore.run_episode(rooms, spec, explore.load_predictor(str(card.parent)))
+    explore.run_episode(rooms, spec, occupied_predictor)  # a predictor without a card: the defaults
+    assert used == [ThresholdConfig(t_f_max=0.1, t_o=0.9), ThresholdConfig()]

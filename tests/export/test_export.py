@@ -23,6 +23,7 @@ from edge_explorer.learn.unet import TorchPredictor, load_unet
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
+from edge_explorer.predict.thresholding import ThresholdConfig
 from tests.export.tiny import TINY_TFLITE, TINY_UNET, TinyPolicy
 
 HAVE_CONVERTER = (tflite.CONVERT_ENV / "bin" / "onnx2tf").is_file()
@@ -244,7 +245,7 @@ def test_the_committed_int8_tflite_runs_under_litert_with_xnnpack_and_matches_to
     assert coverage["delegated_nodes"] > 0 and coverage["partitions"] >= 1
     assert tflite.read_metadata(TINY_TFLITE)["edge_explorer.model"] == "predictor"
     model = type("Loaded", (), {"name": "tiny", "backend": backend, "run": lambda self, x: backend.run(x)})()
-    runtime = PredictorRuntime(model)  # NHWC input: the runtime transposes the encoded window
+    runtime = PredictorRuntime(model, ThresholdConfig())  # NHWC input: the runtime transposes the encoded window
     assert runtime.channels_last and runtime.window_cells == PREDICTOR_WINDOW_CELLS
     window = np.zeros((PREDICTOR_WINDOW_CELLS, PREDICTOR_WINDOW_CELLS), np.int8)
     window[90:170, 128] = 1

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import json
 import logging
 from pathlib import Path
 
@@ -12,10 +13,11 @@ import pytest
 from onnx import TensorProto, helper
 
 from edge_explorer.backends.base import TensorSpec
-from edge_explorer.backends.card import ArtifactCard, write_card
+from edge_explorer.backends.card import ArtifactCard, CardError, write_card
 from edge_explorer.backends.chain import ModelLoadError, load_model
 from edge_explorer.mapping.ego import pad_shift
-from edge_explorer.predict.predictor import PredictorModelError, PredictorRuntime
+from edge_explorer.predict.predictor import PredictorModelError, PredictorRuntime, card_thresholds, thresholds_of
+from edge_explorer.predict.thresholding import ThresholdConfig
 from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
 
 WINDOW = 16  # cells: a small stand-in for the 256×256 window; the wrapper takes the size from the model
@@ -62,6 +64,13 @@ def write_predictor_model(folder: Path, window: int = WINDOW, channels: int = 2,
     card = folder / "card.json"
     write_card(card, "predictor", artifacts)
     return card
+
+
+def add_thresholds(card: Path, entry: object) -> None:
+    """Add a ``thresholds`` key to a card as ``edge-explorer train calibrate-predictor`` does (nothing else changes)."""
+    doc = json.loads(card.read_text())
+    doc["thresholds"] = entry
+    card.write_text(json.dumps(doc))
 
 
 def expected_probability(codes: np.ndarray) -> np.ndarray:
@@ -119,4 +128,23 @@ def test_a_corrupted_artifact_is_refused_before_loading(tmp_path):
 def test_a_model_with_another_input_layout_is_refused(tmp_path):
     card = write_predictor_model(tmp_path / "predictor", channels=1)
     with pytest.raises(PredictorModelError, match=r"must be \[1, 2, S, S\]"):
+        PredictorRuntime(load_model(card, ORDER))
+
+
+def test_the_card_s_calibrated_thresholds_are_the_runtime_s_and_the_defaults_without_them(tmp_path):
+    card = write_predictor_model(tmp_path / "predictor")
+    assert PredictorRuntime(load_model(card, ORDER)).thresholds == ThresholdConfig()
+    add_thresholds(card, {"t_f_max": 0.1, "t_o": 0.9, "precision_target": 0.95, "calibration": {"met_target": True}})
+    predictor = PredictorRuntime(load_model(card, ORDER))  # the artifacts' checks still pass: only a key was added
+    assert predictor.thresholds == ThresholdConfig(t_f_max=0.1, t_o=0.9) == card_thresholds(card.parent)
+    assert thresholds_of(predictor) == ThresholdConfig(t_f_max=0.1, t_o=0.9)
+    assert thresholds_of(expected_probability) == ThresholdConfig()  # any other predictor: the defaults
+    assert PredictorRuntime(load_model(card, ORDER), ThresholdConfig()).thresholds == ThresholdConfig()
+
+
+@pytest.mark.parametrize("entry", [{"t_f_max": 0.95, "t_o": 0.9}, {"t_o": 0.9}, [0.1, 0.9], {"t_f_max": "x", "t_o": 1}])
+def test_bad_thresholds_in_the_card_are_refused(tmp_path, entry):
+    card = write_predictor_model(tmp_path / "predictor")
+    add_thresholds(card, entry)
+    with pytest.raises(CardError, match="'thresholds' needs"):
         PredictorRuntime(load_model(card, ORDER))
