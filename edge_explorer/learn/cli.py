@@ -11,6 +11,7 @@ from pathlib import Path
 
 from edge_explorer.cli import positive_int
 from edge_explorer.cluster.units import add_ray_argument
+from edge_explorer.predict.calibration import DEFAULT_LEVELS
 
 DESCRIPTION = "Map predictor: collect training samples, train the U-Net, ship it with its model card."
 
@@ -135,6 +136,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ship.add_argument("--command", default="", help="the training command line, for the card")
     ship.set_defaults(func=_ship_predictor)
+
+    cal = tsub.add_parser(
+        "calibrate-predictor",
+        help="choose the predictor's thresholds t_f_max, t_o on the val split for a precision target; into its card",
+        description="Fly plans of the regenerated val split as eval predictor does, score every (t_f_max, t_o) pair "
+        "by the precision of the cells the thresholded prediction claims and the coverage it adds, and write the "
+        "chosen pair into the model card (only if it meets the target); table and reliability curve to --docs.",
+    )
+    cal.add_argument("--model", type=Path, default=Path("models/predictor"), help="exported model folder (card.json)")
+    cal.add_argument("--plans", type=positive_int, default=40, help="val plans to fly (default 40)")
+    cal.add_argument("--target", type=_probability, default=0.95, help="precision target (default 0.95)")
+    cal.add_argument(
+        "--levels",
+        type=_probability,
+        nargs="+",
+        default=list(DEFAULT_LEVELS),
+        help="true coverage levels to sample at; the target holds at each (default %(default)s)",
+    )
+    cal.add_argument("--explorer", default="random-goal", help="random-goal (default), frontier or fuel")
+    cal.add_argument("--seed", type=int, default=0)
+    cal.add_argument(
+        "--occupied-noise", type=_probability, default=0.1, metavar="P", help="sensor noise (default 0.1, as eval)"
+    )
+    cal.add_argument("--docs", type=Path, default=Path("docs/predictor"), help="calibration_val.json / .png here")
+    cal.set_defaults(func=_calibrate_predictor)
 
     ship_pol = tsub.add_parser(
         "ship-policy",
@@ -387,6 +413,12 @@ def _policy_curves(args: argparse.Namespace) -> int:
         ]
         print(f"{label}: {run['ppo_steps']} PPO steps, {run['wall_s'] / 3600:.2f} h; " + "; ".join(cells))
     return 0
+
+
+def _calibrate_predictor(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.calibrate_predictor import calibrate_cli
+
+    return calibrate_cli(args)
 
 
 def _ship_predictor(args: argparse.Namespace) -> int:

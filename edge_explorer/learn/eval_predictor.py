@@ -26,7 +26,7 @@ import functools
 import hashlib
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,6 +39,7 @@ from edge_explorer.learn.predictor_data import (
     DEFAULT_SENSOR,
     Explorer,
     FlightLimits,
+    FlightStep,
     PlannerExplorer,
     RandomGoalWalk,
     Scene,
@@ -87,6 +88,28 @@ class PlanCurve:
         return {key: float(values[reached[0]]) for key, values in self.series.items()}
 
 
+def predictions_in_flight(
+    scene: Scene,
+    predictor: Predictor,
+    explorer: Explorer,
+    rng: np.random.Generator,
+    limits: FlightLimits = EVAL_LIMITS,
+    sensor: SensorConfig = DEFAULT_SENSOR,
+) -> Iterator[tuple[FlightStep, np.ndarray | None]]:
+    """Fly one plan; every scan with the prediction on the 0.20 m map (NaN outside the window) when its true
+    coverage enters a new :data:`BIN_WIDTH` bin, None otherwise."""
+    last_bin = -1
+    for s in fly(scene, explorer, rng, sensor, limits):
+        coverage_bin = math.floor(s.coverage / BIN_WIDTH + 1e-9)
+        if coverage_bin == last_bin:
+            yield s, None
+            continue
+        last_bin = coverage_bin
+        cell = scene.low_cell(s.pose[0], s.pose[1])
+        probabilities = predictor(pad_shift(s.maps.low, cell, PREDICTOR_WINDOW_CELLS))
+        yield s, unshift(np.asarray(probabilities, dtype=np.float32), cell, s.maps.low.shape)
+
+
 def evaluate_plan(
     scene: Scene,
     predictor: Predictor,
@@ -99,17 +122,12 @@ def evaluate_plan(
     """Fly one plan and score the map with the thresholded prediction at each new coverage bin."""
     true_coverage: list[float] = []
     series: dict[str, list[float]] = {key: [] for key in SERIES}
-    last_bin, steps = -1, 0
-    for s in fly(scene, explorer, rng, sensor, limits):
+    steps = 0
+    for s, on_map in predictions_in_flight(scene, predictor, explorer, rng, limits, sensor):
         steps = s.step + 1
-        coverage_bin = math.floor(s.coverage / BIN_WIDTH + 1e-9)
-        if coverage_bin == last_bin:
+        if on_map is None:
             continue
-        last_bin = coverage_bin
         maps = s.maps
-        cell = scene.low_cell(s.pose[0], s.pose[1])
-        probabilities = predictor(pad_shift(maps.low, cell, PREDICTOR_WINDOW_CELLS))
-        on_map = unshift(np.asarray(probabilities, dtype=np.float32), cell, maps.low.shape)
         thres = thresholded_map(on_map, maps.low, maps.observed_area_m2(), thresholds)
         m = map_metrics(maps.low, scene.truth_low, scene.interior_low, thres)
         true_coverage.append(s.coverage)

@@ -28,6 +28,7 @@ from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 
 DEFAULT_PRECISION_TARGET = 0.95
+DEFAULT_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.8, 0.95)  # true coverage to sample at: early, mid, late in a flight
 # Candidate grids; both contain the defaults (0.04, 0.94) so the calibrated pair is compared with them exactly.
 T_F_MAX_CANDIDATES: tuple[float, ...] = (0.005, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.10, 0.12, 0.15, 0.20)
 T_O_CANDIDATES: tuple[float, ...] = (0.5, 0.6, 0.7, 0.75, 0.8, 0.85, 0.88, 0.9, 0.92, 0.94, 0.95, 0.96, 0.97, 0.98)
