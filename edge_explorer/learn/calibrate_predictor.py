@@ -162,7 +162,7 @@ def calibrate_cli(args: argparse.Namespace) -> int:
     provenance = {
         "command": shlex.join(["edge-explorer", *sys.argv[1:]]),
         "split": "val (regenerated, edge_explorer.world.dataset.regenerate_split)",
-        "plans": plans,
+        "plans": ",".join(plans),
         "explorer": make_explorer(args.explorer).name,
         "seed": args.seed,
         "sensor_occupied_noise_prob": args.occupied_noise,
@@ -187,8 +187,8 @@ def calibrate_cli(args: argparse.Namespace) -> int:
     if calibration.met_target:
         write_card_thresholds(card_path, calibration, provenance)
     chosen = calibration.chosen
-    verdict = "meets" if calibration.met_target else "NO pair meets; the most precise is"
-    print(f"{len(samples)} samples from {len(plans)} val plans; {verdict} the target {args.target:.0%}:")
+    verdict = "meets the target" if calibration.met_target else "NO pair meets the target; the most precise one"
+    print(f"{len(samples)} samples from {len(plans)} val plans; chosen pair {verdict} ({args.target:.0%}):")
     print(f"  level: precision, coverage added — chosen ({chosen.t_f_max:g}, {chosen.t_o:g}) vs default (0.04, 0.94)")
     for level in calibration.levels:
         print(

@@ -47,6 +47,7 @@ from edge_explorer.learn.predictor_data import (
 )
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS, pad_shift, unshift
 from edge_explorer.mapping.metrics import map_metrics
+from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.env import Predictor
 from edge_explorer.sim.sensor import SensorConfig
@@ -278,7 +279,10 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     weights = args.model / CARD_FILE if args.model.is_dir() else args.model
     sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=args.occupied_noise)
     reference = str(args.model) if args.ray else predictor  # Ray workers load their own
-    report = evaluate(args.plans, reference, args.explorer, args.seed, args.limit, sensor=sensor, ray=args.ray)
+    thresholds = thresholds_of(predictor)  # an exported model's card may carry calibrated ones (DESIGN.md §5)
+    report = evaluate(
+        args.plans, reference, args.explorer, args.seed, args.limit, thresholds, sensor=sensor, ray=args.ray
+    )
     report = {"model": str(args.model), "model_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(), **report}
     write_json(args.json, report)
     if args.plot:

@@ -92,3 +92,12 @@ def test_bad_input_is_refused():
         calibrate([])
     with pytest.raises(ValueError, match="N_M = 0"):
         calibrate([CalibrationSample(0.5, *(np.zeros((1, 2)),) * 2, 1.0, np.zeros((1, 2)), np.zeros((1, 2), bool))])
+
+
+def test_the_card_keeps_the_trade_off_front():
+    result = calibrate([FIXTURE], 0.95, t_f_max_candidates=(0.05, 0.10, 0.12), t_o_candidates=(0.8, 0.88, 0.95))
+    front = {(row.t_f_max, row.t_o) for row in result.front()}
+    assert front == {(0.10, 0.88), (0.10, 0.8), (0.12, 0.88), (0.12, 0.8)}  # (1, 18/40), (18/19, 19/40), (0.9, 20/40)
+    entry = result.card_entry()
+    assert (entry["t_f_max"], entry["t_o"], entry["precision_target"]) == (0.10, 0.88, 0.95)
+    assert len(entry["calibration"]["table"]) == 4 and len(result.to_json()["table"]) == 9
