@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from edge_explorer.backends.card import CARD_FILE, load_card, verify_sha256
+from edge_explorer.backends.card import CARD_FILE, CardError, load_card, verify_sha256
 from edge_explorer.backends.chain import load_model
 from edge_explorer.learn.eval_predictor import DEFAULT_THRESHOLDS, make_explorer, predictions_in_flight
 from edge_explorer.learn.predictor_data import DEFAULT_SENSOR, Explorer, Scene
@@ -95,7 +95,7 @@ def write_card_thresholds(card_path: Path, calibration: Calibration, provenance:
     for artifact in card.artifacts.values():
         verify_sha256(card, artifact)
     if card_thresholds(card_path) != calibration.thresholds:
-        raise AssertionError(f"{card_path}: the thresholds written do not read back")
+        raise CardError(f"{card_path}: the thresholds written do not read back")
 
 
 def plot_calibration(calibration: Calibration, path: Path, title: str) -> None:
