@@ -160,6 +160,7 @@ def goal_observations(
     """Roll the goal env out on the val plans and record every decision with its valid-goal mask; ``act`` maps an
     observation and its flat mask to a valid flat goal cell (see the module docstring)."""
     from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
+    from edge_explorer.predict.predictor import thresholds_of
     from edge_explorer.sim.env import EnvConfig
     from edge_explorer.sim.goal_env import GoalEnv
 
@@ -167,7 +168,7 @@ def goal_observations(
     shape = (GOAL_GRID_CELLS, GOAL_GRID_CELLS)
 
     def rollouts(rasters: list, offset: int, desc: str) -> tuple[list[Feed], list[np.ndarray]]:
-        env = GoalEnv(rasters, EnvConfig(), predictor=predictor)
+        env = GoalEnv(rasters, EnvConfig(thresholds=thresholds_of(predictor)), predictor=predictor)
         feeds: list[Feed] = []
         masks: list[np.ndarray] = []
         for k in tqdm(range(len(rasters)), desc=desc, unit="plan"):

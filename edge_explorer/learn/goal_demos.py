@@ -31,6 +31,7 @@ from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 from edge_explorer.plan.goal_policy import GoalPolicy, choose_cell, expert_label, goal_at_cell, goal_decision
 from edge_explorer.plan.predictive import PredictiveFrontier
+from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster
@@ -74,7 +75,8 @@ def fly_demo(
     raster: PlanRaster, predictor: Predictor | None, seed: int, config: DemoConfig, policy: GoalPolicy | None = None
 ) -> list[Record]:
     """One labelled episode on ``raster`` from a random start (see the module docstring)."""
-    env = ExplorationEnv([raster], EnvConfig(coverage_goal=1.0, max_steps=config.max_steps), predictor=predictor)
+    env_config = EnvConfig(coverage_goal=1.0, max_steps=config.max_steps, thresholds=thresholds_of(predictor))
+    env = ExplorationEnv([raster], env_config, predictor=predictor)
     planner = LabellingPlanner(policy, env.table)
     planner.reset()
     _, info = env.reset(seed=seed)

@@ -38,6 +38,7 @@ from torch import nn
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
+from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig
 from edge_explorer.sim.goal_env import NUM_GOALS, GoalEnv
 
@@ -140,7 +141,8 @@ def _make_env(config: PPOConfig, rank: int):  # noqa: ANN202 - SB3's env factory
         share = range(rank, config.train_plans, config.n_envs)  # each worker its own plans
         rasters = [r for k, r in enumerate(split_rasters(config.plans, "train", 0, config.train_plans)) if k in share]
         predictor = load_predictor(config.predictor) if config.predictor else None
-        env = GoalEnv(rasters, EnvConfig(max_steps=config.max_steps), predictor=predictor)
+        env_config = EnvConfig(max_steps=config.max_steps, thresholds=thresholds_of(predictor))
+        env = GoalEnv(rasters, env_config, predictor=predictor)
         env.reset(seed=config.seed * 1000 + rank)
         return _ScaledReward(env, config.reward_scale)
 
