@@ -38,12 +38,13 @@ from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.baselines import PLANNERS
+from edge_explorer.plan.goal_policy import GoalPolicy, GoalPolicyPlanner
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster, clearance_m
 
 PRED_SUFFIX = "+pred"
-DRL = "drl"  # the learned policy (DESIGN.md §6): acts on the simulator's observation, not through a planner
+DRL = "drl"  # the learned goal policy (DESIGN.md §6), flown through the goal-planner loop
 RECORD_FORMAT = "edge-explorer/explore-run"
 CURVE_STEP_M = 0.5  # path-length spacing of the mean curves
 START_CLEARANCE_M = 0.5  # from the start pose to the nearest wall
@@ -173,45 +174,37 @@ def load_predictor(reference: str) -> Predictor:
     return predictor
 
 
-Policy = Callable[[dict[str, np.ndarray]], int]  # the simulator's observation → one of the six action ids
+def load_policy(reference: str) -> GoalPolicy:
+    """The learned goal policy named by ``reference`` as a :data:`~edge_explorer.plan.goal_policy.GoalPolicy`
+    (observation → 59 × 59 goal-cell scores), flown by :class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`:
 
-
-@dataclass(frozen=True)
-class GoalPolicyRef:
-    """A learned goal policy (:mod:`edge_explorer.plan.goal_policy`): ``drl`` runs fly it through the planner loop."""
-
-    scores: Callable[[dict[str, np.ndarray]], np.ndarray]
-
-
-def load_policy(reference: str) -> Policy | GoalPolicyRef:
-    """The policy named by ``reference``.
-
-    * a ``.safetensors`` goal policy of :func:`~edge_explorer.learn.goal_net.save_goal_net` (torch, ``train``
-      extra): the learned goal planner, flown by the shared planner loop;
-    * a ``.safetensors`` actor of :func:`~edge_explorer.learn.policy_net.load_policy_module`, or a model folder
-      (``models/policy``) or its ``card.json`` — the primitive-action policy through the backend chain, as the daemon
-      runs it; the action is the argmax of the logits. (This family leaves when the goal policy ships.)
+    * a ``.safetensors`` of :func:`~edge_explorer.learn.goal_net.save_goal_net` — the torch weights a training run
+      writes (``train`` extra);
+    * a model folder (``models/policy``) or its ``card.json`` — the exported policy through the backend chain, as the
+      daemon runs it.
     """
     path = Path(reference)
     if path.suffix == ".safetensors":
         if not path.is_file():
             raise EdgeExplorerError(f"--policy {reference}: no such file")
         try:
-            from edge_explorer.learn.goal_net import GOAL_NET_FORMAT, TorchGoalPolicy
-            from edge_explorer.learn.policy_net import TorchPolicy, read_metadata
+            from edge_explorer.learn.goal_net import TorchGoalPolicy
         except ImportError as exc:
             raise EdgeExplorerError(
                 f"--policy {reference}: torch weights need the train extra (pip install -e '.[train]'): {exc}"
             ) from exc
-        if read_metadata(path).get("format") == GOAL_NET_FORMAT:
-            return GoalPolicyRef(TorchGoalPolicy.from_file(path))
-        return TorchPolicy.from_file(path)
+        try:
+            return TorchGoalPolicy.from_file(path)
+        except ValueError as exc:
+            raise EdgeExplorerError(f"--policy {reference}: {exc}") from None
     if path.is_dir() or path.name == CARD_FILE:
         from edge_explorer.backends.chain import load_model
         from edge_explorer.plan.policy import PolicyRuntime
 
-        return PolicyRuntime(load_model(path)).act
-    raise EdgeExplorerError(f"--policy {reference!r}: expected a model folder with card.json or a .safetensors actor")
+        return PolicyRuntime(load_model(path)).scores
+    raise EdgeExplorerError(
+        f"--policy {reference!r}: expected a model folder with card.json or a goal-policy .safetensors"
+    )
 
 
 # ---- one run ------------------------------------------------------------------------------------------------------
@@ -219,12 +212,12 @@ def run_episode(
     raster: PlanRaster,
     spec: RunSpec,
     predictor: Predictor | None = None,
-    policy: Policy | GoalPolicyRef | None = None,
+    policy: GoalPolicy | None = None,
 ) -> dict[str, Any]:
     """Fly one run and return its record: the spec, how it ended, and the per-step curves.
 
-    A planner method decides from the observed (and fused) map; the ``drl`` methods fly a learned goal policy through
-    the same planner loop, or call a primitive-action ``policy`` on the observation."""
+    A planner method decides from the observed (and fused) map; the ``drl`` methods fly the learned goal ``policy``
+    through the same planner loop (:class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`)."""
     method = spec.method.removesuffix(PRED_SUFFIX)
     # the run, not the env, decides when to stop; the predictor's card may carry calibrated thresholds (DESIGN.md §5)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps, thresholds=thresholds_of(predictor))
@@ -232,16 +225,11 @@ def run_episode(
     if method == DRL:
         if policy is None:
             raise EdgeExplorerError(f"{spec.method} needs a policy")
-        planner = None
-        if isinstance(policy, GoalPolicyRef):  # the learned goal planner: the planner loop flies its goals
-            from edge_explorer.plan.goal_policy import GoalPolicyPlanner
-
-            planner = GoalPolicyPlanner(policy.scores, table=env.table)
+        planner = GoalPolicyPlanner(policy, table=env.table)
     else:
         planner = PLANNERS[method](env.table)
-    if planner is not None:
-        planner.reset()
-    observation, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
+    planner.reset()
+    _, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
     coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
     previous, collisions, planner_s = 0, 0, 0.0
     start = time.perf_counter()
@@ -253,14 +241,12 @@ def run_episode(
             ending = "step_cap"
             break
         t = time.perf_counter()
-        action = (
-            policy(observation) if planner is None else planner.act(env.maps, env.pose, previous, env.thresholded_low)
-        )
+        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
         planner_s += time.perf_counter() - t
         if action is None:
             ending = "explored"
             break
-        observation, _, _, _, info = env.step(action)
+        _, _, _, _, info = env.step(action)
         collisions += int(info["collided"])
         previous = 0 if info["collided"] else action  # after a collision the vehicle has stopped
         coverage.append(info["coverage"])
@@ -332,7 +318,7 @@ def plan_specs(
 
 
 _WORKER_PREDICTORS: dict[str, Predictor] = {}
-_WORKER_POLICIES: dict[str, Policy | GoalPolicyRef] = {}
+_WORKER_POLICIES: dict[str, GoalPolicy] = {}
 
 
 def _run_task(task: tuple[PlanRaster, RunSpec]) -> dict[str, Any]:

@@ -9,9 +9,6 @@ observations are the same on every machine. Its first ``plans`` plans calibrate 
   drawn uniformly), and each recorded map becomes the network's input exactly as in flight: the north-up ego window
   (:func:`~edge_explorer.mapping.ego.pad_shift`) encoded by :func:`~edge_explorer.predict.encoding.encode_windows`.
   Held-back samples keep their map, robot cell and plan so the gates can threshold and score them.
-* **Policy**: :class:`~edge_explorer.sim.env.ExplorationEnv` episodes on the plans (with the recipe's predictor
-  filling the thres map, as in phase-2 training), acting with the fp32 policy itself (10 % random actions so the
-  episodes do not repeat one path) or uniformly at random; every ``stride``-th observation is recorded.
 * **Goal policy**: :class:`~edge_explorer.sim.goal_env.GoalEnv` episodes (one step per goal decision; the recipe's
   predictor filling the fused map, as in phase-2 training), choosing with the fp32 network's masked argmax (10 %
   uniformly random valid goals so episodes differ) or uniformly at random. Every decision is recorded — each
@@ -36,8 +33,6 @@ from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS, pad_shift
 from edge_explorer.predict.encoding import encode_windows
 
 Feed = dict[str, np.ndarray]
-POLICY_STEP_STRIDE = 8  # record every 8th step of a policy episode: consecutive observations are near duplicates
-POLICY_RANDOM_ACTION_PROB = 0.1
 GOAL_RANDOM_GOAL_PROB = 0.1
 GOAL_EPISODES_PER_PLAN = 3
 
@@ -112,44 +107,6 @@ def predictor_observations(config: CalibrationConfig, input_name: str) -> Observ
     _require(held_back, "held-back", config)
     description = _describe(config, calibration_rasters, held_back_rasters, len(calibration), len(held_back))
     return Observations(calibration, held_back, maps, description)
-
-
-def policy_observations(
-    config: CalibrationConfig,
-    act: Callable[[dict[str, np.ndarray]], int],
-    predictor: Callable[[np.ndarray], np.ndarray] | None,
-) -> Observations:
-    """Roll the exploration env out on the val plans and record every ``POLICY_STEP_STRIDE``-th observation."""
-    from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-
-    calibration_rasters, held_back_rasters = val_rasters(config)
-
-    def rollouts(rasters: list, offset: int, desc: str) -> list[Feed]:
-        env = ExplorationEnv(rasters, EnvConfig(), predictor=predictor)
-        feeds: list[Feed] = []
-        for k in tqdm(range(len(rasters)), desc=desc, unit="plan"):
-            rng = np.random.default_rng([config.seed, offset + k])
-            obs, _ = env.reset(seed=config.seed * 100_003 + offset + k, options={"plan_index": k})
-            recorded = 0
-            for step in range(config.per_plan * POLICY_STEP_STRIDE):
-                if step % POLICY_STEP_STRIDE == 0:
-                    feeds.append({name: np.asarray(v, dtype=np.float32)[np.newaxis] for name, v in obs.items()})
-                    recorded += 1
-                explore = config.explorer == "random" or rng.random() < POLICY_RANDOM_ACTION_PROB
-                action = int(rng.integers(6)) if explore else act(obs)
-                obs, _, terminated, truncated, _ = env.step(action)
-                if terminated or truncated:
-                    break
-        return feeds
-
-    calibration = rollouts(calibration_rasters, 0, "calibration rollouts")
-    held_back = rollouts(held_back_rasters, len(calibration_rasters), "held-back rollouts")
-    _require(calibration, "calibration", config)
-    _require(held_back, "held-back", config)
-    description = _describe(config, calibration_rasters, held_back_rasters, len(calibration), len(held_back))
-    description["step_stride"] = POLICY_STEP_STRIDE
-    description["predictor"] = None if config.predictor is None else str(config.predictor)
-    return Observations(calibration, held_back, [], description)
 
 
 def goal_observations(

@@ -4,7 +4,7 @@ Exit codes: 0 every gate passed (artifacts and card installed), 1 a gate failed 
 artifacts untouched), 2 bad input (recipe, checkpoint, missing converter environment).
 
 ``--all`` skips, with one line each, the recipes whose checkpoint has not been trained yet (e.g. the goal policy
-before its training has produced ``models/goal_policy/goal_policy.safetensors``); ``--recipe`` names one recipe and
+before its training has produced ``models/policy/policy.safetensors``); ``--recipe`` names one recipe and
 a missing checkpoint is an error.
 """
 

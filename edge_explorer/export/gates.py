@@ -11,7 +11,6 @@
   building are never flown nor scored. Both are reported beside it, not gated: ``unobserved_cell_agreement``
   (every unobserved cell of the plan's grid, exterior included) and ``interior_cell_agreement`` (all N_M cells of
   M_thres, observed ones included).
-* **Policy** — ``top1_agreement``: the share of held-back observations where both give the same argmax action.
 * **Goal policy** — ``top1_agreement``: the share of held-back decisions where both choose the same goal, each
   choosing the argmax over that decision's *valid* goal cells only (:func:`masked_argmax`, what the planner flies):
   a disagreement at a masked cell changes nothing in flight and does not count. Reported beside it, not gated:
@@ -82,20 +81,6 @@ def predictor_gate(
         failures.append(f"cell agreement {figures['cell_agreement']:.4f} < {gates['min_cell_agreement']}")
     summary = f"F1 {figures['f1']:.3f} (Δ {-figures['f1_drop']:+.4f}), cells agree {figures['cell_agreement']:.2%}"
     return GateResult(not failures, figures, summary, tuple(failures))
-
-
-def policy_gate(reference: Sequence[np.ndarray], candidate: Sequence[np.ndarray], gates: Mapping) -> GateResult:
-    """Top-1 action agreement with fp32."""
-    same = [int(np.argmax(r)) == int(np.argmax(c)) for r, c in zip(reference, candidate, strict=True)]
-    figures = {
-        "top1_agreement": float(np.mean(same)),
-        "max_abs_diff": _max_abs_diff(reference, candidate),
-        "observations": len(same),
-    }
-    failures = []
-    if figures["top1_agreement"] < gates["min_top1_agreement"]:
-        failures.append(f"top-1 agreement {figures['top1_agreement']:.4f} < {gates['min_top1_agreement']}")
-    return GateResult(not failures, figures, f"top-1 agree {figures['top1_agreement']:.2%}", tuple(failures))
 
 
 def masked_argmax(scores: np.ndarray, mask: np.ndarray) -> int:

@@ -3,22 +3,13 @@
 * ``predictor``: :func:`edge_explorer.learn.unet.load_unet` then :meth:`~edge_explorer.learn.unet.UNet.fused`
   (BatchNorm folded) — input ``map`` [1, 2, 256, 256] (:func:`~edge_explorer.predict.encoding.encode_windows`),
   output ``occupancy`` [1, 1, 256, 256] probabilities; the contract of :mod:`edge_explorer.predict.predictor`.
-* ``policy``: :func:`edge_explorer.learn.policy_net.load_policy_module` — inputs ``high``, ``thres``
-  [1, 237, 237] (the raw cell codes) and ``last_action`` [1, 6] (one-hot, float32), output ``logits`` [1, 6]; the
-  contract of :mod:`edge_explorer.plan.policy`. The ONNX graphs take the codes as **int8** and encode them with
-  comparisons (:class:`Int8CodesPolicy`): the input needs no float copy, and the int8 graph's first convolution
-  reads the comparisons' result as integers (:func:`~edge_explorer.export.onnx_formats.fold_quantize_into_where`).
-  The TFLite converter starts from the float-code graph instead (:attr:`ExportNetwork.tflite_source`), whose ReLU
-  encoding maps onto the Edge TPU (it has no EQUAL, SELECT or CAST) and whose int8 TFLite inputs take the codes as
-  they are. Both encodings give the same 0/1 channels.
-* ``goal_policy``: :func:`edge_explorer.learn.goal_net.load_goal_net` wrapped in :class:`GoalLogits` — inputs
+* ``policy``: :func:`edge_explorer.learn.goal_net.load_goal_net` wrapped in :class:`GoalLogits` — inputs
   ``high``, ``thres`` [1, 237, 237] (cell codes as float32) and ``last_action`` [1, 6] (one-hot), output ``logits``
   [1, 59, 59], the spatial action map of :mod:`edge_explorer.plan.goal_grid`; the chosen goal is the argmax over
   the valid cells (:func:`~edge_explorer.plan.goal_policy.choose_cell`). The value head is PPO's critic only and
   is left out of the graph. Every format, ONNX and TFLite, takes the float codes and encodes them with the net's
-  own ReLUs (:func:`~edge_explorer.learn.goal_net.encode_codes`): an int8-code ONNX input like the primitive
-  policy's would need a second copy of :meth:`GoalNet.forward <edge_explorer.learn.goal_net.GoalNet.forward>`
-  around a comparison encoding, for a gain of one QuantizeLinear over two 237 × 237 inputs.
+  own ReLUs (:func:`~edge_explorer.learn.goal_net.encode_codes`), which map onto the Edge TPU (it has no EQUAL,
+  SELECT or CAST).
 
 The batch is fixed at 1 (what the daemon runs, and what full-integer TFLite needs).
 """
@@ -28,7 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import subprocess
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -46,11 +37,6 @@ PREDICTOR_ENCODING = (
     "edge_explorer.predict.encoding.encode_windows: NCHW float32, channel 0 = observed FREE, channel 1 = observed "
     "OCCUPIED (0/1), UNKNOWN = (0, 0); north-up 0.20 m ego window of mapping.ego.pad_shift, robot cell (128, 128)"
 )
-POLICY_ENCODING = (
-    "edge_explorer.mapping.ego.encode_observation: high / thres = heading-up 237x237 code windows (FREE -1, "
-    "UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2; int8 in ONNX, quantized int8 in TFLite), vehicle cell (118, 118); "
-    "last_action = one-hot of 6"
-)
 GOAL_POLICY_ENCODING = (
     "edge_explorer.mapping.ego.encode_observation: high / thres = heading-up 237x237 code windows (FREE -1, "
     "UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2; float32 in ONNX, quantized int8 in TFLite), vehicle cell (118, 118); "
@@ -66,44 +52,25 @@ GOAL_GRID_CONTRACT = json.dumps(
         "edge_explorer.plan.goal_policy.choose_cell)",
     }
 )
-ENCODINGS = {"predictor": PREDICTOR_ENCODING, "policy": POLICY_ENCODING, "goal_policy": GOAL_POLICY_ENCODING}
+ENCODINGS = {"predictor": PREDICTOR_ENCODING, "policy": GOAL_POLICY_ENCODING}
 
 
 @dataclass(frozen=True)
 class ExportNetwork:
     """A torch module in eval mode and what the exported graph must look like."""
 
-    kind: str  # predictor | policy | goal_policy
+    kind: str  # predictor | policy
     module: torch.nn.Module
     inputs: dict[str, tuple[int, ...]]  # name → shape, ONNX (torch) layout, batch 1
     outputs: tuple[str, ...]
     metadata: dict[str, str]  # written into the ONNX metadata_props and the TFLite metadata
-    input_dtypes: dict[str, str] = field(default_factory=dict)  # name → numpy dtype; float32 when not named
-    tflite_source: ExportNetwork | None = None  # the network the TFLite converter starts from, when not this one
-
-    def dtype(self, name: str) -> np.dtype:
-        return np.dtype(self.input_dtypes.get(name, "float32"))
 
     def example(self) -> tuple[torch.Tensor, ...]:
-        return tuple(torch.from_numpy(np.zeros(shape, self.dtype(name))) for name, shape in self.inputs.items())
+        return tuple(torch.zeros(shape) for shape in self.inputs.values())
 
     def cast(self, feed: Feed) -> Feed:
-        """``feed`` with every input in this network's dtype (the recorded observations are float32)."""
-        return {name: np.asarray(feed[name], dtype=self.dtype(name)) for name in self.inputs}
-
-
-class Int8CodesPolicy(torch.nn.Module):
-    """The policy actor taking ``high`` and ``thres`` as int8 codes: encoded by comparison
-    (:func:`~edge_explorer.learn.policy_net.encode_codes_by_comparison`), then the actor's own layers."""
-
-    def __init__(self, actor: torch.nn.Module) -> None:
-        super().__init__()
-        self.actor = actor
-
-    def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
-        from edge_explorer.learn.policy_net import encode_codes_by_comparison
-
-        return self.actor.logits_from_channels(encode_codes_by_comparison(high, thres), last_action)
+        """``feed``'s inputs of this network as float32 arrays."""
+        return {name: np.asarray(feed[name], dtype=np.float32) for name in self.inputs}
 
 
 class GoalLogits(torch.nn.Module):
@@ -173,35 +140,17 @@ def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None) -
     )
 
 
-def policy_network(actor: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
-    """The export view of a :class:`~edge_explorer.learn.policy_net.PolicyActor`: int8-code inputs for ONNX
-    (:class:`Int8CodesPolicy`), the actor itself (float codes) as the TFLite converter's source."""
-    size = OBSERVATION_WINDOW_CELLS
-    inputs = {"high": (1, size, size), "thres": (1, size, size), "last_action": (1, NUM_ACTIONS)}
-    metadata = {**base_metadata("policy", checkpoint), "edge_explorer.output": "action logits [1, 6]; action = argmax"}
-    float_codes = ExportNetwork("policy", actor.eval(), inputs, ("logits",), metadata)
-    return ExportNetwork(
-        "policy",
-        Int8CodesPolicy(actor).eval(),
-        inputs,
-        ("logits",),
-        metadata,
-        input_dtypes={"high": "int8", "thres": "int8"},
-        tflite_source=float_codes,
-    )
-
-
-def goal_policy_network(net: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
+def policy_network(net: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
     """The export view of a :class:`~edge_explorer.learn.goal_net.GoalNet`: float-code inputs, the goal logits
     only (:class:`GoalLogits`), the goal-grid contract in the metadata."""
     size = OBSERVATION_WINDOW_CELLS
     metadata = {
-        **base_metadata("goal_policy", checkpoint),
+        **base_metadata("policy", checkpoint),
         "edge_explorer.output": f"goal-cell logits [1, {GOAL_GRID_CELLS}, {GOAL_GRID_CELLS}]; goal = masked argmax",
         "edge_explorer.goal_grid": GOAL_GRID_CONTRACT,
     }
     return ExportNetwork(
-        "goal_policy",
+        "policy",
         GoalLogits(net).eval(),
         {"high": (1, size, size), "thres": (1, size, size), "last_action": (1, NUM_ACTIONS)},
         ("logits",),
@@ -221,14 +170,10 @@ def load_network(recipe: Recipe) -> ExportNetwork:
         if unet.config.in_channels != INPUT_CHANNELS:
             raise RecipeError(f"{recipe.checkpoint}: the predictor must take {INPUT_CHANNELS} input channels")
         return predictor_network(unet.fused(), recipe.checkpoint)
-    if recipe.model == "goal_policy":
-        from edge_explorer.learn.goal_net import load_goal_net
+    from edge_explorer.learn.goal_net import load_goal_net
 
-        try:
-            net = load_goal_net(recipe.checkpoint)
-        except (ValueError, RuntimeError) as exc:
-            raise RecipeError(f"{recipe.checkpoint}: not a goal policy checkpoint ({exc})") from None
-        return goal_policy_network(net, recipe.checkpoint)
-    from edge_explorer.learn.policy_net import load_policy_module
-
-    return policy_network(load_policy_module(recipe.checkpoint), recipe.checkpoint)
+    try:
+        net = load_goal_net(recipe.checkpoint)
+    except (ValueError, RuntimeError) as exc:
+        raise RecipeError(f"{recipe.checkpoint}: not a goal policy checkpoint ({exc})") from None
+    return policy_network(net, recipe.checkpoint)

@@ -8,9 +8,6 @@
   weights, per-channel weights when the recipe says so) after ``quant_pre_process`` (shape inference + graph
   optimisation), calibrated on the recipe's observations with the recipe's method (MinMax / Entropy /
   Percentile). Inputs and outputs stay float32: the quantization lives inside the graph.
-* :func:`fold_quantize_into_where`: after quantization, a ``QuantizeLinear`` of a ``Where`` between two constants
-  (the policy's comparison encoding) becomes the ``Where`` of the two quantized constants — the same integers, with
-  no float tensor and no quantize pass over it.
 * :func:`qdq_error_report`: when a gate fails, onnxruntime's ``qdq_loss_debug`` runs the fp32 and the QDQ model on
   the held-back observations and gives every activation tensor's signal-to-quantization-noise ratio (dB), worst
   first — the tensors to look at (or exclude from quantization).
@@ -126,57 +123,9 @@ def quantize_int8(fp32_path: Path, out_path: Path, feeds: Sequence[Feed], config
             extra_options={"CalibPercentile": config.percentile, "CalibTensorRangeSymmetric": False},
         )
     model = onnx.load(str(out_path))
-    fold_quantize_into_where(model)
     onnx.helper.set_model_props(model, {p.key: p.value for p in onnx.load(str(fp32_path)).metadata_props})
     onnx.save(model, str(out_path))
     onnx.checker.check_model(str(out_path))
-
-
-def fold_quantize_into_where(model: onnx.ModelProto) -> int:
-    """Rewrite ``QuantizeLinear(Where(mask, a, b))`` with constant scalars ``a``, ``b`` (and the ``Where`` feeding
-    nothing else) as ``Where(mask, q(a), q(b))``: exact, since quantizing commutes with choosing. int8 results are
-    shifted to uint8 (zero point + 128, as onnxruntime does to every Q/DQ pair on x86, where its integer convolution
-    wants uint8 activations — a lone DequantizeLinear of int8 would leave the convolution in float). Returns the
-    number of folds; the model is changed in place."""
-    graph = model.graph
-    constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
-    constant_nodes = (n for n in graph.node if n.op_type == "Constant" and n.attribute[0].name == "value")
-    constants.update({n.output[0]: numpy_helper.to_array(n.attribute[0].t) for n in constant_nodes})
-    producer = {out: node for node in graph.node for out in node.output}
-    folds = 0
-    for quantize in [n for n in graph.node if n.op_type == "QuantizeLinear"]:
-        where = producer.get(quantize.input[0])
-        if where is None or where.op_type != "Where" or not {where.input[1], where.input[2]} <= constants.keys():
-            continue
-        if sum(where.output[0] in n.input for n in graph.node) != 1 or len(quantize.input) < 3:
-            continue
-        scale, zero_point = constants[quantize.input[1]], constants[quantize.input[2]]
-        if scale.size != 1:
-            continue
-        info = np.iinfo(zero_point.dtype)
-        shift = 128 if zero_point.dtype == np.int8 else 0
-        dtype = np.uint8 if shift else zero_point.dtype
-        names = []
-        for branch in where.input[1:]:
-            q = np.clip(np.round(constants[branch] / scale) + zero_point, info.min, info.max).astype(np.int16)
-            names.append(f"{branch}_quantized_{folds}")
-            graph.initializer.append(numpy_helper.from_array(np.asarray(q + shift, dtype), names[-1]))
-        zero_point_name = f"{quantize.input[2]}_folded_{folds}"
-        graph.initializer.append(
-            numpy_helper.from_array(np.asarray(zero_point.astype(np.int16) + shift, dtype), zero_point_name)
-        )
-        for node in graph.node:
-            if node.op_type == "DequantizeLinear" and node.input[0] == quantize.output[0]:
-                node.input[2] = zero_point_name
-        replaced = {*where.input[1:], quantize.input[2]}
-        where.input[1], where.input[2] = names
-        where.output[0] = quantize.output[0]
-        graph.node.remove(quantize)
-        still_used = {name for node in graph.node for name in node.input}
-        for unused in [t for t in graph.initializer if t.name in replaced - still_used]:
-            graph.initializer.remove(unused)  # the float branches and int8 zero point nothing reads any more
-        folds += 1
-    return folds
 
 
 def qdq_error_report(fp32_path: Path, int8_path: Path, feeds: Sequence[Feed], worst: int = 10) -> list[dict]:

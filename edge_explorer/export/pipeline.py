@@ -37,7 +37,6 @@ from edge_explorer.export.calibration import (
     Feed,
     Observations,
     goal_observations,
-    policy_observations,
     predictor_observations,
 )
 from edge_explorer.export.networks import ExportNetwork, load_network
@@ -148,7 +147,7 @@ def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations
 
     def scores(obs: dict[str, np.ndarray]) -> np.ndarray:
         with torch.no_grad():
-            args = (torch.from_numpy(np.asarray(obs[n], dtype=network.dtype(n))[None]) for n in network.inputs)
+            args = (torch.from_numpy(np.asarray(obs[n], dtype=np.float32)[None]) for n in network.inputs)
             return network.module(*args).numpy()
 
     predictor = None
@@ -156,10 +155,8 @@ def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations
         from edge_explorer.bench.explore import load_predictor
 
         predictor = load_predictor(str(recipe.calibration.predictor))
-    if network.kind == "goal_policy":
-        return goal_observations(recipe.calibration, lambda obs, mask: gate_fns.masked_argmax(scores(obs), mask),
-                                 predictor)  # fmt: skip
-    return policy_observations(recipe.calibration, lambda obs: int(np.argmax(scores(obs))), predictor)
+    return goal_observations(recipe.calibration, lambda obs, mask: gate_fns.masked_argmax(scores(obs), mask),
+                             predictor)  # fmt: skip
 
 
 def graph_cost(onnx_path: Path, network: ExportNetwork) -> dict:
@@ -167,7 +164,7 @@ def graph_cost(onnx_path: Path, network: ExportNetwork) -> dict:
     import onnx_tool
 
     model = onnx_tool.Model(str(onnx_path))
-    model.graph.shape_infer({name: np.zeros(shape, network.dtype(name)) for name, shape in network.inputs.items()})
+    model.graph.shape_infer({name: np.zeros(shape, np.float32) for name, shape in network.inputs.items()})
     model.graph.profile()
     macs = model.graph.macs  # onnx-tool 1.x: [multiply-accumulates, sparse-skipped]
     return {
@@ -220,9 +217,7 @@ def _export_in(
     def recipe_gate(outputs: list[np.ndarray]) -> gate_fns.GateResult:
         if network.kind == "predictor":
             return gate_fns.predictor_gate(reference, outputs, obs.maps, recipe.gates)
-        if network.kind == "goal_policy":
-            return gate_fns.goal_gate(reference, outputs, obs.masks, recipe.gates)
-        return gate_fns.policy_gate(reference, outputs, recipe.gates)
+        return gate_fns.goal_gate(reference, outputs, obs.masks, recipe.gates)
 
     example = [torch.from_numpy(held[0][n]) for n in network.inputs]
     with torch.no_grad():
@@ -263,15 +258,11 @@ def _export_in(
 
     if "tflite_int8" in recipe.formats:
         tfl_path = tmp / f"{name}_int8.tflite"
-        source, source_path = network.tflite_source or network, fp32_path
-        if source is not network:  # the converter's own fp32 graph (not shipped), e.g. the policy's float codes
-            source_path = tmp / f"{name}_tflite_source_fp32.onnx"
-            onnx_formats.export_fp32(source, source_path)
-        log(f"converting {tfl_path.name} from {source_path.name} with onnx2tf (full integer, {len(calibration)} "
+        log(f"converting {tfl_path.name} from {fp32_path.name} with onnx2tf (full integer, {len(calibration)} "
             "observations)")  # fmt: skip
-        tflite.convert(source_path, tfl_path, [source.cast(f) for f in obs.calibration],
-                       recipe.quantization.per_channel, tmp / "onnx2tf", convert_env)  # fmt: skip
-        tflite.finalize_tflite(tfl_path, list(source.inputs), source.outputs, source.metadata)
+        tflite.convert(fp32_path, tfl_path, calibration, recipe.quantization.per_channel, tmp / "onnx2tf",
+                       convert_env)  # fmt: skip
+        tflite.finalize_tflite(tfl_path, list(network.inputs), network.outputs, network.metadata)
         xnnpack = tflite.xnnpack_coverage(tfl_path)
         row = measure("tflite_int8", tfl_path, LiteRtCpuBackend(1), "int8", recipe_gate)
         row.details["xnnpack"] = xnnpack

@@ -2,17 +2,17 @@
 
 A recipe says what to export and how to judge it::
 
-    model = "predictor"                     # predictor | policy | goal_policy: the network, its calibration, gates
+    model = "predictor"                     # predictor | policy: the network, its calibration, gates
     checkpoint = "models/predictor/predictor.safetensors"   # relative to the recipe's folder's parent (the repo)
 
     [calibration]                           # observations recorded from simulator rollouts on the val split
     split = "val"
     plans = 16                              # val plans flown for calibration …
     held_back_plans = 8                     # … and further val plans, never calibrated on, for the accuracy gates
-    per_plan = 8                            # observations (goal_policy: decisions) recorded per plan
-    explorer = "random-goal"                # predictor: random-goal | frontier | fuel; (goal_)policy: policy | random
+    per_plan = 8                            # observations (policy: goal decisions) recorded per plan
+    explorer = "random-goal"                # predictor: random-goal | frontier | fuel; policy: policy | random
     seed = 0
-    predictor = "models/predictor"          # (goal_)policy only, optional: the thres map's predictor (a model
+    predictor = "models/predictor"          # policy only, optional: the thres map's predictor (a model
                                             # folder or a .safetensors U-Net, as bench explore --predictor)
 
     [quantization]
@@ -24,7 +24,7 @@ A recipe says what to export and how to judge it::
     produce = ["onnx_fp32", "onnx_int8", "tflite_int8"]
 
     [gates]                                 # predictor: max_f1_drop, min_cell_agreement;
-                                            # policy, goal_policy: min_top1_agreement (goal_policy: masked argmax)
+                                            # policy: min_top1_agreement (masked argmax)
 
     [latency]
     repeats = 30                            # timed runs per format (after warm-up), one thread
@@ -44,18 +44,16 @@ from typing import Any
 
 from edge_explorer.errors import EdgeExplorerError
 
-MODELS = ("predictor", "policy", "goal_policy")
+MODELS = ("predictor", "policy")
 METHODS = ("minmax", "entropy", "percentile")
 FORMATS = ("onnx_fp32", "onnx_int8", "tflite_int8")
 EXPLORERS = {
     "predictor": ("random-goal", "frontier", "fuel"),
     "policy": ("policy", "random"),
-    "goal_policy": ("policy", "random"),
 }
 GATE_KEYS = {
     "predictor": ("max_f1_drop", "min_cell_agreement"),
     "policy": ("min_top1_agreement",),
-    "goal_policy": ("min_top1_agreement",),
 }
 
 

@@ -1,4 +1,5 @@
-"""``edge-explorer train …`` and ``edge-explorer eval …``: the map predictor's data, training and evaluation.
+"""``edge-explorer train …`` and ``edge-explorer eval …``: the map predictor's and the goal policy's data, training
+and shipping, and the predictor's evaluation.
 
 Handlers import torch lazily, so ``edge-explorer --help`` works without the ``train`` extra.
 """
@@ -13,7 +14,10 @@ from edge_explorer.cli import positive_int
 from edge_explorer.cluster.units import add_ray_argument
 from edge_explorer.predict.calibration import DEFAULT_LEVELS
 
-DESCRIPTION = "Map predictor: collect training samples, train the U-Net, ship it with its model card."
+DESCRIPTION = (
+    "Map predictor: collect training samples, train the U-Net, ship it with its model card. Goal policy: expert "
+    "demonstrations, behaviour cloning (DAgger with --policy), MaskablePPO, ship it with its model card."
+)
 
 
 def _probability(text: str) -> float:
@@ -28,7 +32,9 @@ def _probability(text: str) -> float:
 
 def register(sub: argparse._SubParsersAction) -> None:
     train = sub.add_parser(
-        "train", help="training: predictor-data, predictor, ship-predictor, policy", description=DESCRIPTION
+        "train",
+        help="training: predictor-data, predictor, ship-predictor, goal-demos, goal-bc, goal-ppo, ship-policy",
+        description=DESCRIPTION,
     )
     tsub = train.add_subparsers(dest="train_command", metavar="WHAT", required=True)
 
@@ -67,20 +73,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     pred.add_argument("--max-steps", type=positive_int, help="stop after N steps of this call (resume later)")
     pred.set_defaults(func=_train_predictor)
 
-    pol = tsub.add_parser(
-        "policy",
-        help="train the DRL planner: expert demonstrations, BC warm start, PPO phases 1-2 (checkpoints, --resume)",
-        description="Train the exploration policy from a TOML config; see edge_explorer/learn/configs/policy.toml.",
-    )
-    pol.add_argument("--config", type=Path, required=True, help="TOML config")
-    pol.add_argument(
-        "--out", type=Path, required=True, help="run folder: expert episodes, checkpoint, logs, best actor"
-    )
-    pol.add_argument("--resume", action="store_true", help="continue from OUT/state.json (same config)")
-    pol.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    pol.add_argument("--max-minutes", type=positive_int, help="stop PPO after N minutes of this call (resume later)")
-    pol.set_defaults(func=_train_policy)
-
     demos = tsub.add_parser(
         "goal-demos",
         help="fly the predictive expert (or, with --policy, a goal policy: DAgger) and record labelled decisions",
@@ -101,8 +93,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="behaviour-clone the goal policy on expert demonstrations (checkpoints, --resume)",
         description="Train the goal policy network on expert-labelled decisions (masked cross-entropy).",
     )
-    bc.add_argument("--train-demos", default="data/goal_demos/train")
+    bc.add_argument("--train-demos", default="data/goal_demos/train", help="shard folder(s), comma-separated")
     bc.add_argument("--val-demos", default="data/goal_demos/val")
+    bc.add_argument("--init", default="", help="goal-policy .safetensors to start from (default: random weights)")
     bc.add_argument("--steps", type=positive_int, default=4000, help="total optimizer steps (default 4000)")
     bc.add_argument("--batch-size", type=positive_int, default=32)
     bc.add_argument("--threads", type=positive_int, default=1)
@@ -164,17 +157,25 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     ship_pol = tsub.add_parser(
         "ship-policy",
-        help="copy a run's best actor to models/policy with card.json; learning curves to docs/policy",
-        description="Write the shipped policy, its model card and its learning curves from a training run.",
+        help="copy goal-policy weights to models/policy with card.json (stages, evaluation, flight-ready)",
+        description="Write the shipped goal policy and its model card from its training stages and the benchmark "
+        "that flew these weights; then `edge-explorer export --recipe quantize/policy.toml` adds the artifacts.",
     )
-    ship_pol.add_argument("--run", type=Path, required=True, help="training run folder (best.safetensors)")
+    ship_pol.add_argument("--weights", type=Path, required=True, help="goal-policy .safetensors (a run's best)")
+    ship_pol.add_argument(
+        "--stage", type=Path, action="append", default=[], help="a training run folder (goal-bc / goal-ppo), in order"
+    )
     ship_pol.add_argument("--out", type=Path, default=Path("models/policy"))
-    ship_pol.add_argument("--eval", type=Path, help="the eval policy JSON of these weights (buildings A-D)")
-    ship_pol.add_argument("--docs", type=Path, default=Path("docs/policy"), help="learning curves and logs here")
-    ship_pol.add_argument("--command", default="", help="the training command line, for the card")
+    ship_pol.add_argument("--eval", type=Path, help="the bench explore --json report that flew these weights")
+    ship_pol.add_argument("--docs", type=Path, default=Path("docs/policy"), help="learning curves here")
+    ship_pol.add_argument("--command", default="", help="the training command lines, for the card")
     ship_pol.set_defaults(func=_ship_policy)
 
-    ev = sub.add_parser("eval", help="evaluation: predictor, policy", description="Evaluate trained models.")
+    ev = sub.add_parser(
+        "eval",
+        help="evaluation: predictor (the policy: bench explore --methods drl+pred)",
+        description="Evaluate trained models.",
+    )
     esub = ev.add_subparsers(dest="eval_command", metavar="WHAT", required=True)
     evp = esub.add_parser(
         "predictor",
@@ -202,35 +203,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_ray_argument(evp)
     evp.set_defaults(func=_eval_predictor)
 
-    evpol = esub.add_parser(
-        "policy",
-        help="fly the policy and nearest frontier on the benchmark's runs; path at 95 %% coverage, success",
-        description="The policy (deterministic) and the frontier baseline fly the exploration benchmark's runs "
-        "(same start per building, same noise seeds, same ending rule); prints Table I rows and the path ratios.",
-    )
-    evpol.add_argument("--model", type=Path, required=True, help="policy weights (.safetensors)")
-    evpol.add_argument("--plans", default="A,B,C,D", help="plan reference (default A,B,C,D)")
-    evpol.add_argument("--runs", type=positive_int, default=10, help="runs per building (default 10)")
-    evpol.add_argument("--seed", type=int, default=0, help="benchmark seed (default 0, as bench explore)")
-    evpol.add_argument("--max-steps", type=positive_int, default=1500, help="step cap per run (default 1500)")
-    evpol.add_argument("--predictor", help="fly drl+pred and frontier+pred with this predictor (as bench explore)")
-    evpol.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
-    add_ray_argument(evpol)
-    evpol.add_argument("--json", type=Path, required=True, help="write the figures here")
-    evpol.add_argument("--markdown", type=Path, help="also write the table here")
-    evpol.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
-    evpol.set_defaults(func=_eval_policy)
-
-    curves = esub.add_parser(
-        "policy-curves",
-        help="compare training runs' val learning curves (coverage, success, collisions vs steps and wall time)",
-        description="Plot the val evaluations (eval.csv) of policy training runs side by side; write their figures.",
-    )
-    curves.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR", help="training run folders, each with a label")
-    curves.add_argument("--plot", type=Path, required=True, help="the figure (PNG)")
-    curves.add_argument("--json", type=Path, required=True, help="the figures per run (JSON)")
-    curves.set_defaults(func=_policy_curves)
-
 
 def _goal_demos(args: argparse.Namespace) -> int:
     from edge_explorer.learn.goal_demos import generate_demos
@@ -257,6 +229,7 @@ def _goal_bc(args: argparse.Namespace) -> int:
         total_steps=args.steps,
         batch_size=args.batch_size,
         threads=args.threads,
+        init=args.init,
     )
     state = train(config, args.out, resume=args.resume)
     print(f"step {state['step']}: best val agreement with the expert {state['best_agreement']:.3f} → {args.out}")
@@ -310,108 +283,16 @@ def _train_predictor(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_policy(args: argparse.Namespace) -> int:
-    from edge_explorer.learn.train_policy import load_config, train
-
-    state = train(load_config(args.config), args.out, args.resume, args.device, args.config, args.max_minutes)
-    best = state.best_eval or {}
-    print(
-        f"{state.stage}: {state.timesteps} PPO steps, {state.wall_s / 3600:.2f} h; best val success "
-        f"{best.get('success_rate', float('nan')):.2f} at {state.best_timesteps} steps "
-        f"→ {args.out / 'best.safetensors'}"
-    )
-    return 0
-
-
 def _ship_policy(args: argparse.Namespace) -> int:
-    from edge_explorer.learn.policy_card import ship_policy
+    from edge_explorer.learn.goal_card import ship_goal_policy
 
-    card = ship_policy(args.run, args.out, args.eval, args.command, args.docs)
+    card = ship_goal_policy(args.weights, args.stage, args.out, args.eval, args.command, args.docs)
     arch = card["architecture"]
     print(
-        f"{args.out / card['weights']}: {arch['macs'] / 1e6:.0f} MMAC, {arch['params'] / 1e6:.2f} M params, "
-        f"{card['latency_torch_fp32_this_host']['median_ms']:.1f} ms fp32 single-thread; sha256 {card['sha256'][:12]}…"
+        f"{args.out / card['weights']}: {arch['macs'] / 1e6:.0f} MMAC, {arch['params'] / 1e6:.3f} M params, "
+        f"{card['latency_torch_fp32_this_host']['median_ms']:.1f} ms fp32 single-thread; "
+        f"sha256 {card['sha256'][:12]}…; flight-ready: {card['flight_ready']['ready']} ({card['flight_ready']['why']})"
     )
-    return 0
-
-
-def _eval_policy(args: argparse.Namespace) -> int:
-    import sys
-
-    from tqdm import tqdm
-
-    from edge_explorer.backends.card import sha256_of
-    from edge_explorer.bench import explore as bench
-    from edge_explorer.cli import write_json
-    from edge_explorer.learn.eval_policy import evaluate_buildings, path_ratios
-    from edge_explorer.learn.policy_net import read_metadata
-    from edge_explorer.world.catalog import load_buildings
-
-    read_metadata(args.model)  # one-line error for a missing file
-    if args.predictor is not None:
-        bench.load_predictor(args.predictor)
-    config = bench.BenchConfig(max_steps=args.max_steps)
-    rasters = load_buildings(args.plans)
-
-    def progress(iterable, total):
-        return tqdm(iterable, total=total, desc="eval policy", unit="run", mininterval=1.0)
-
-    records, methods = evaluate_buildings(
-        args.model, rasters, args.runs, args.seed, config, args.predictor, args.workers, progress, args.ray
-    )
-    summary = bench.summarize(records, methods)
-    ratios = path_ratios(summary, methods)
-    table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)
-    print(table, end="")
-    print(
-        "path at 95 % coverage, policy / frontier (avg): "
-        + ", ".join(f"{k} {v:.2f}" if v is not None else f"{k} –" for k, v in ratios.items())
-    )
-    if args.markdown is not None:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(table)
-    if args.plot is not None:
-        title = f"policy vs frontier — {args.plans}, {args.runs} run(s) per building, seed {args.seed}"
-        bench.plot_curves(bench.figure_panels(records, methods), args.plot, config.coverage_goal, title)
-    write_json(
-        args.json,
-        {
-            "command": "edge-explorer " + " ".join(sys.argv[1:]),
-            "model": str(args.model),
-            "model_sha256": sha256_of(args.model),
-            "plans": args.plans,
-            "runs_per_plan": args.runs,
-            "seed": args.seed,
-            "methods": methods,
-            "config": {"coverage_goal": config.coverage_goal, "max_steps": config.max_steps},
-            "ratios": ratios,
-            "table": table,
-            "summary": summary,
-            "failures": bench.failures(records),
-            "runs": [{k: v for k, v in r.items() if k != "curves"} for r in records],
-        },
-    )
-    return 0
-
-
-def _policy_curves(args: argparse.Namespace) -> int:
-    from edge_explorer.errors import EdgeExplorerError
-    from edge_explorer.learn.eval_policy import compare_runs
-
-    runs = {}
-    for item in args.runs:
-        label, sep, folder = item.partition("=")
-        if not sep or not label:
-            raise EdgeExplorerError(f"expected LABEL=RUN_DIR (e.g. pool2=runs/policy/pool2), got {item!r}")
-        runs[label] = Path(folder)
-    for label, run in compare_runs(runs, args.plot, args.json).items():
-        after = {k: run[k] for k in ("after_bc", "after_ppo", "best")}
-        cells = [
-            f"{k} cov {r['mean_coverage']:.3f} succ {r['success_rate']:.2f} coll/ep {r['collisions_per_episode']:.2f}"
-            for k, r in after.items()
-            if r is not None
-        ]
-        print(f"{label}: {run['ppo_steps']} PPO steps, {run['wall_s'] / 3600:.2f} h; " + "; ".join(cells))
     return 0
 
 

@@ -122,8 +122,10 @@ class Demos:
 
 
 def load_demos(folder: str | Path) -> Demos:
-    """Every finished shard (with its marker) of ``folder``."""
-    paths = sorted(p for p in Path(folder).glob("shard-*.npz") if p.with_suffix(".json").exists())
+    """Every finished shard (with its marker) of ``folder`` — or of each of several folders, comma-separated (e.g.
+    the expert's demonstrations and a DAgger round's)."""
+    folders = [Path(f) for f in str(folder).split(",") if f]
+    paths = [p for f in folders for p in sorted(f.glob("shard-*.npz")) if p.with_suffix(".json").exists()]
     if not paths:
         raise EdgeExplorerError(f"{folder}: no finished demonstration shards; run `edge-explorer train goal-demos`")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("high", "thres", "last_action", "mask", "label")}

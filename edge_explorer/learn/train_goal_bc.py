@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.goal_demos import Demos, load_demos
-from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, save_goal_net
+from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 
 _MIRRORED_ACTION = torch.tensor([0, 2, 1, 3, 5, 4])  # hover, right↔left, forward, right+fwd↔left+fwd
@@ -38,8 +38,9 @@ _MIRRORED_ACTION = torch.tensor([0, 2, 1, 3, 5, 4])  # hover, right↔left, forw
 class BCConfig:
     """A behaviour-cloning run."""
 
-    train_demos: str = "data/goal_demos/train"
+    train_demos: str = "data/goal_demos/train"  # shard folder(s), comma-separated
     val_demos: str = "data/goal_demos/val"
+    init: str = ""  # a goal-policy .safetensors to start from (DAgger rounds, new demonstrations); "" = random
     batch_size: int = 32
     learning_rate: float = 1e-3
     weight_decay: float = 1e-4
@@ -129,8 +130,8 @@ def _load(out: Path, model: GoalNet, optimizer: torch.optim.Optimizer) -> dict:
 def train(
     config: BCConfig, out: Path, resume: bool = False, net: GoalNetConfig | None = None, stop_at_step: int | None = None
 ) -> dict:
-    """Train (or continue) a behaviour-cloning run into ``out`` (network ``net``, default widths); returns the final
-    state. ``stop_at_step`` ends this call early with a checkpoint, as a session that runs out of time does."""
+    """Train (or continue) a behaviour-cloning run into ``out`` (network ``net``, default widths; with
+    ``config.init``, that file's network and weights to start from); returns the final state. ``stop_at_step`` ends this call early with a checkpoint, as a session that runs out of time does."""
     net = net if net is not None else GoalNetConfig()
     from tqdm import tqdm
 
@@ -142,7 +143,11 @@ def train(
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     train_set, val_set = load_demos(config.train_demos), load_demos(config.val_demos)
+    start = load_goal_net(config.init) if config.init else None
+    net = start.config if start is not None else net
     model = GoalNet(net)
+    if start is not None and not resume:
+        model.load_state_dict(start.state_dict())
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     if resume:
         state = _load(out, model, optimizer)

@@ -158,7 +158,7 @@ def evaluate(net: GoalNet, config: PPOConfig) -> dict[str, float]:
     from edge_explorer.learn.goal_net import TorchGoalPolicy
 
     predictor = bench.load_predictor(config.predictor) if config.predictor else None
-    policy = bench.GoalPolicyRef(TorchGoalPolicy(copy.deepcopy(net)))
+    policy = TorchGoalPolicy(copy.deepcopy(net))
     paths, successes = [], 0
     for raster in split_rasters(config.plans, "val", config.val_first, config.val_first + config.eval_plans):
         spec = bench.RunSpec(

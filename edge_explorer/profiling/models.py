@@ -132,16 +132,12 @@ def edgetpu_summary(card_path: Path) -> Any:
 
 
 def feed_for(specs: tuple[Any, ...], seed: int = 0) -> dict[str, np.ndarray]:
-    """Fixed pseudo-random inputs of each input's shape (dynamic dimensions set to 1): float32 in [−1, 1], or the
-    cell codes −1 … 2 for an integer input that is not quantized (the policy's int8-code ONNX)."""
+    """Fixed pseudo-random float32 inputs in [−1, 1] of each input's shape (dynamic dimensions set to 1); the
+    backend quantizes them where its input is integer."""
     rng = np.random.default_rng(seed)
-    feed = {}
-    for s in specs:
-        shape = tuple(1 if d == -1 else d for d in s.shape)
-        codes = np.issubdtype(np.dtype(s.dtype), np.integer) and not s.quantized
-        values = rng.integers(-1, 3, shape) if codes else rng.uniform(-1.0, 1.0, shape)
-        feed[s.name] = values.astype(s.dtype if codes else np.float32)
-    return feed
+    return {
+        s.name: rng.uniform(-1.0, 1.0, tuple(1 if d == -1 else d for d in s.shape)).astype(np.float32) for s in specs
+    }
 
 
 def time_calls(call: Callable[[], object], repeats: int, warmup: int) -> np.ndarray:

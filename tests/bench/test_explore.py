@@ -11,6 +11,7 @@ from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.world.plan import save_plan_json
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
+from tests.plan.test_policy import nearest_first_scores, write_policy_model
 
 
 def occupied_predictor(window: np.ndarray) -> np.ndarray:
@@ -199,20 +200,22 @@ def test_predictor_loads_from_a_model_folder_weights_or_a_callable(tmp_path):
         explore.load_predictor("not-a-reference")
 
 
-def test_drl_methods_fly_a_policy_on_the_observation(rooms):
+def test_drl_methods_fly_a_goal_policy_through_the_planner_loop(rooms, tmp_path):
     with pytest.raises(EdgeExplorerError, match="--policy"):
         explore.plan_specs([rooms], ["drl"], runs=1, seed=0)
-    spec = explore.plan_specs([rooms], ["drl"], runs=1, seed=0, config=explore.BenchConfig(max_steps=12), policy="p")[0]
+    spec = explore.plan_specs([rooms], ["drl"], runs=1, seed=0, policy="p")[0]
     seen = []
 
-    def turn_left(observation):
+    def nearest_goal_first(observation):
         seen.append({k: v.shape for k, v in observation.items()})
-        return 2
+        return nearest_first_scores()
 
-    record = explore.run_episode(rooms, spec, policy=turn_left)
-    assert record["ending"] == "step_cap" and record["steps"] == 12 and record["collisions"] == 0
-    assert len(seen) == 12 and seen[0] == {"high": (237, 237), "thres": (237, 237), "last_action": (6,)}
-    assert record["curves"]["coverage"][-1] > record["curves"]["coverage"][0]  # turning in place still sees more
+    record = explore.run_episode(rooms, spec, policy=nearest_goal_first)
+    assert record["ending"] == "goal" and record["collisions"] == 0  # its goals are flown along observed free space
+    assert seen and seen[0] == {"high": (237, 237), "thres": (237, 237), "last_action": (6,)}
+    assert len(seen) < record["steps"] / 3  # one decision per goal, not per step
+    exported = explore.load_policy(str(write_policy_model(tmp_path / "policy").parent))  # the daemon's runtime
+    assert explore.run_episode(rooms, spec, policy=exported)["curves"] == record["curves"]
     with pytest.raises(EdgeExplorerError, match="--policy"):
         explore.load_policy("not-a-model")
 

@@ -8,23 +8,20 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import onnx
 import pytest
-import torch
 
 from edge_explorer.backends.chain import load_model
 from edge_explorer.backends.litert_cpu import LiteRtCpuBackend
 from edge_explorer.cli import main
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.export import calibration, pipeline, tflite
-from edge_explorer.export.networks import policy_network, predictor_network
+from edge_explorer.export.networks import predictor_network
 from edge_explorer.export.recipe import RecipeError, load_recipe
 from edge_explorer.learn.unet import TorchPredictor, load_unet
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
-from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.predict.thresholding import ThresholdConfig
-from tests.export.tiny import TINY_TFLITE, TINY_UNET, TinyPolicy
+from tests.export.tiny import TINY_TFLITE, TINY_UNET
 
 HAVE_CONVERTER = (tflite.CONVERT_ENV / "bin" / "onnx2tf").is_file()
 needs_converter = pytest.mark.skipif(not HAVE_CONVERTER, reason="no .venv-convert (create it with `make convert-env`)")
@@ -43,21 +40,6 @@ produce = ["onnx_fp32", "onnx_int8"]
 [gates]
 max_f1_drop = 0.01
 min_cell_agreement = 0.99
-[latency]
-repeats = 2
-"""
-POLICY_RECIPE = """
-model = "policy"
-checkpoint = "ckpt/policy.safetensors"
-[calibration]
-plans = 2
-held_back_plans = 1
-per_plan = 4
-explorer = "random"
-[formats]
-produce = ["onnx_fp32", "onnx_int8"]
-[gates]
-min_top1_agreement = 0.98
 [latency]
 repeats = 2
 """
@@ -99,7 +81,7 @@ def test_a_bad_recipe_is_one_line_naming_the_problem(tmp_path, edit, message):
 def test_the_shipped_recipes_are_valid():
     root = Path(__file__).resolve().parents[2] / "quantize"
     recipes = [load_recipe(p) for p in sorted(root.glob("*.toml"))]
-    assert {r.model for r in recipes} == {"predictor", "policy", "goal_policy"}
+    assert {r.model for r in recipes} == {"predictor", "policy"}
     assert all(r.checkpoint.parent.parent.name == "models" for r in recipes)
 
 
@@ -177,62 +159,6 @@ def test_calibrating_on_all_unknown_maps_fails_the_gate_and_installs_nothing(tmp
     assert sorted(p.name for p in (out / "predictor").iterdir()) == ["card.json"]
     assert (out / "predictor" / "card.json").read_text() == '{"previous": true}'
     assert [p.name for p in out.iterdir()] == ["predictor"]  # the temporary folder is gone
-
-
-@pytest.mark.slow
-def test_policy_round_trip_through_the_policy_runtime(tmp_path):
-    recipe = load_recipe(write_recipe(tmp_path, POLICY_RECIPE))
-    module = TinyPolicy()
-    report = pipeline.run_export(recipe, tmp_path / "models", network=policy_network(module), log=quiet)
-    assert report.passed, report.table()
-    gate = next(r for r in report.rows if r.format == "onnx_int8").gate
-    assert gate.figures["top1_agreement"] >= 0.98 and gate.figures["observations"] > 0
-    rng = np.random.default_rng(0)
-    obs = {
-        "high": rng.integers(-1, 3, (237, 237)).astype(np.int8),
-        "thres": rng.integers(-1, 3, (237, 237)).astype(np.int8),
-        "last_action": np.eye(6, dtype=np.float32)[2],
-    }
-    with torch.no_grad():
-        args = (torch.from_numpy(np.asarray(obs[k], np.float32)[None]) for k in ("high", "thres", "last_action"))
-        expected = int(torch.argmax(module(*args)))
-    card = json.loads((report.out_dir / "card.json").read_text())
-    int8 = onnx.load(report.out_dir / "policy_int8.onnx").graph.node
-    wheres = {n.output[0] for n in int8 if n.op_type == "Where"}
-    assert wheres and not any(n.op_type == "QuantizeLinear" and n.input[0] in wheres for n in int8)  # folded
-    for precision in ("fp32", "int8"):
-        policy = PolicyRuntime(load_model(report.out_dir, ("onnxruntime-cpu",), precision=precision))
-        assert policy.act(obs) == expected
-        inputs = card["artifacts"][f"policy_{precision}.onnx"]["inputs"]
-        assert [(i["name"], i["dtype"]) for i in inputs] == [("high", "int8"), ("thres", "int8"),
-                                                             ("last_action", "float32")]  # fmt: skip
-
-
-@needs_converter
-@pytest.mark.slow
-def test_the_policy_tflite_is_converted_from_the_float_code_graph(tmp_path):
-    """ONNX takes int8 codes (comparisons); the TFLite converter starts from the ReLU-encoded float-code graph, whose
-    ops all map onto the Edge TPU, and both answer the same actions."""
-    recipe = load_recipe(write_recipe(tmp_path, POLICY_RECIPE.replace('"onnx_int8"]', '"onnx_int8", "tflite_int8"]')))
-    report = pipeline.run_export(recipe, tmp_path / "models", network=policy_network(TinyPolicy()), log=quiet)
-    assert report.passed, report.table()
-    row = next(r for r in report.rows if r.format == "tflite_int8")
-    assert row.details["edgetpu"]["unsupported_ops"] == {} and "EQUAL" not in row.details["edgetpu"]["ops"]
-    assert sorted(p.name for p in report.out_dir.iterdir()) == [
-        "card.json",
-        "policy_fp32.onnx",
-        "policy_int8.onnx",
-        "policy_int8.tflite",
-    ]  # the source graph is not shipped
-    rng = np.random.default_rng(1)
-    obs = {
-        "high": rng.integers(-1, 3, (237, 237)).astype(np.int8),
-        "thres": rng.integers(-1, 3, (237, 237)).astype(np.int8),
-        "last_action": np.eye(6, dtype=np.float32)[4],
-    }
-    actions = {PolicyRuntime(load_model(report.out_dir, (backend,), precision="int8")).act(obs)
-               for backend in ("onnxruntime-cpu", "litert-cpu")}  # fmt: skip
-    assert len(actions) == 1
 
 
 # ---- TFLite ------------------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tiny deterministic networks with the predictor's and the policy's export contracts (a few kB of weights).
+"""A tiny deterministic network with the predictor's export contract (a few kB of weights).
 
 ``make_fixtures`` regenerates the committed ``data/`` files (needs ``make convert-env``)::
 
@@ -11,11 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
-from edge_explorer.learn.policy_net import encode_codes
 from edge_explorer.learn.unet import UNet, UNetConfig, load_unet, save_unet
-from edge_explorer.mapping.ego import NUM_ACTIONS
 
 DATA = Path(__file__).parent / "data"
 TINY_UNET = DATA / "tiny_unet.safetensors"
@@ -35,29 +32,6 @@ def tiny_unet(windows: torch.Tensor, seed: int = 0) -> UNet:
         model.head[1].weight.mul_(scale)
         model.head[1].bias.mul_(scale).sub_(torch.median(logits) * scale)
     return model
-
-
-class TinyPolicy(nn.Module):
-    """The interface of :class:`edge_explorer.learn.policy_net.PolicyActor` (``forward`` on float codes,
-    ``logits_from_channels`` on the encoded channels) with a few kB of weights; the last action dominates the logits
-    so that the argmax is well defined under quantization noise."""
-
-    def __init__(self, seed: int = 0) -> None:
-        super().__init__()
-        torch.manual_seed(seed)
-        self.conv = nn.Conv2d(6, 4, kernel_size=8, stride=8)
-        self.maps = nn.Linear(4 * 29 * 29, NUM_ACTIONS)
-        self.last = nn.Linear(NUM_ACTIONS, NUM_ACTIONS)
-        with torch.no_grad():
-            self.maps.weight.mul_(0.1)
-            self.last.weight.copy_(4.0 * torch.roll(torch.eye(NUM_ACTIONS), 1, dims=0))
-
-    def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
-        return self.logits_from_channels(torch.cat([encode_codes(high), encode_codes(thres)], dim=1), last_action)
-
-    def logits_from_channels(self, channels: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
-        x = torch.relu(self.conv(channels))
-        return self.maps(torch.flatten(x, 1)) + self.last(last_action)
 
 
 def make_fixtures() -> None:

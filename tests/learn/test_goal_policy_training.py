@@ -1,5 +1,6 @@
 """Goal-policy demonstrations, behaviour cloning and a flight of the cloned policy (edge_explorer.learn.goal_*)."""
 
+import json
 import math
 
 import numpy as np
@@ -7,10 +8,14 @@ import pytest
 import torch
 
 from edge_explorer.bench import explore as bench
+from edge_explorer.export import calibration, pipeline
+from edge_explorer.export.recipe import load_recipe
+from edge_explorer.learn.goal_card import ship_goal_policy
 from edge_explorer.learn.goal_demos import DemoConfig, fly_demo, load_demos, write_demos
-from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
+from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, TorchGoalPolicy, load_goal_net, save_goal_net
 from edge_explorer.learn.train_goal_bc import BCConfig, batch_tensors, train
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
+from edge_explorer.runtime.daemon import choose_models
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 
@@ -88,14 +93,44 @@ def test_resume_equals_an_uninterrupted_run(demo_dirs, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_cloned_policy_flies_the_two_rooms_in_the_benchmark(demo_dirs, rooms, tmp_path):
+def test_train_ship_export_and_fly_the_exported_policy_on_the_two_rooms(demo_dirs, rooms, tmp_path, monkeypatch):
+    """The whole path of a goal policy, tiny: behaviour cloning → bench with the torch weights → ship (card, with the
+    bench that flew them) → export to ONNX fp32/int8 with its gate → the exported policy flies the benchmark and
+    the daemon's model loader takes it as flight-ready."""
     config = BCConfig(
         train_demos=str(demo_dirs / "train"), val_demos=str(demo_dirs / "val"), batch_size=4, total_steps=30
     )
     train(config, tmp_path / "bc", net=TINY_NET)
-    policy = bench.load_policy(str(tmp_path / "bc" / "best.safetensors"))
-    assert isinstance(policy, bench.GoalPolicyRef)
-    spec = bench.RunSpec("drl", rooms.name, 0, 3, (1.0, 1.5, -math.pi / 2), 0.95, 400, None, "bc")
+    weights = tmp_path / "bc" / "best.safetensors"
+    policy = bench.load_policy(str(weights))
+    assert isinstance(policy, TorchGoalPolicy)
+    spec = bench.RunSpec("drl", rooms.name, 0, 3, (1.0, 1.5, -math.pi / 2), 0.95, 400, None, str(weights))
     record = bench.run_episode(rooms, spec, None, policy)
     assert record["ending"] == "goal" and record["collisions"] == 0  # goals reachable by construction
     assert record["path_at_coverage_m"] is not None
+
+    evaluation = tmp_path / "bench.json"
+    summary = bench.summarize([record], ["drl"])
+    evaluation.write_text(json.dumps({"command": "test", "plans": rooms.name, "methods": ["drl"], "runs_per_plan": 1,
+                                      "seed": 0, "paired": [], "config": {"policy": str(weights)},
+                                      "summary": summary}))  # fmt: skip
+    models = tmp_path / "models"
+    card = ship_goal_policy(weights, [tmp_path / "bc"], models / "policy", evaluation, "test", tmp_path / "docs")
+    assert card["flight_ready"]["ready"] and card["training"]["stages"][0]["kind"] == "bc"
+    assert card["architecture"]["macs"] > 0 and (tmp_path / "docs" / "learning_curves.png").is_file()
+
+    monkeypatch.setattr(calibration, "val_rasters", lambda c: ([rooms] * c.plans, [rooms] * c.held_back_plans))
+    (tmp_path / "quantize").mkdir()
+    recipe_path = tmp_path / "quantize" / "policy.toml"
+    recipe_path.write_text(
+        'model = "policy"\ncheckpoint = "models/policy/policy.safetensors"\n[calibration]\nplans = 1\n'
+        'held_back_plans = 1\nper_plan = 4\n[formats]\nproduce = ["onnx_fp32", "onnx_int8"]\n[gates]\n'
+        "min_top1_agreement = 0.5\n[latency]\nrepeats = 2\n"
+    )
+    report = pipeline.run_export(load_recipe(recipe_path), models, log=lambda *_: None)
+    assert report.passed, report.table()
+    exported = bench.load_policy(str(models / "policy"))
+    record = bench.run_episode(rooms, spec, None, exported)
+    assert record["ending"] == "goal" and record["collisions"] == 0
+    choice = choose_models(models, "auto", ("onnxruntime-cpu",))
+    assert choice.policy is not None and choice.notes[0].startswith("planner: drl")

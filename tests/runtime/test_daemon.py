@@ -35,6 +35,7 @@ from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import align_to_grid
 from edge_explorer.mapping.voxels import VoxelRegion
+from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.runtime.daemon import (
@@ -49,7 +50,6 @@ from edge_explorer.runtime.daemon import (
 from edge_explorer.runtime.depth_sources import DepthFrame, SimulatedDepthSource
 from edge_explorer.runtime.mavlink_link import LinkConfig, LinkStatus, MavlinkLink, Pose
 from edge_explorer.sim.camera import CameraPose, DepthCamera, DepthIntrinsics
-from edge_explorer.sim.dynamics import Action
 from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, VehicleState
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.grid import FREE, OCCUPIED
@@ -334,15 +334,27 @@ def test_the_predictive_expert_flies_on_the_fused_map(raster, camera, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_policy_flying_into_walls_is_overruled_by_the_safety_check(raster, camera, tmp_path):
-    """A policy that always says FORWARD: the west wall of the east room stops it; every unsafe choice is replaced
-    by the frontier planner's (or hover); the vehicle never touches a wall."""
-    policy = PolicyRuntime(load_model(write_policy_model(tmp_path / "policy", always=Action.FORWARD), ORDER))
+def test_a_goal_policy_flies_its_goals_through_the_shared_planner_loop(raster, camera, tmp_path):
+    """An exported goal policy (nearest goal cell first) explores: the planner loop flies its goals along observed
+    free space, the safety check passes them, the policy is timed inside the planner stage; no wall is touched."""
+    policy = PolicyRuntime(load_model(write_policy_model(tmp_path / "policy"), ORDER))
     flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=8.0), policy=policy)
-    sources = flight.report.waypoint_sources
-    assert flight.report.planner == "drl"
-    assert sources.get("policy", 0) > 0 and sources.get("frontier", 0) + sources.get("hover", 0) > 0
-    assert {"ego", "policy", "waypoint_trajectory"} <= set(flight.report.stages)
+    assert flight.report.planner == "drl" and flight.report.waypoint_sources.get("policy", 0) > 0
+    assert {"planner", "policy", "waypoint_trajectory"} <= set(flight.report.stages)
+    assert 0 < flight.report.stages["policy"].count <= flight.report.stages["planner"].count
+    assert flight.vehicle.collisions == 0
+
+
+@pytest.mark.slow
+def test_a_goal_policy_that_fails_in_flight_hands_over_to_the_frontier_planner(raster, camera, tmp_path, caplog):
+    nan_scores = np.full((GOAL_GRID_CELLS, GOAL_GRID_CELLS), np.nan, dtype=np.float32)
+    policy = PolicyRuntime(load_model(write_policy_model(tmp_path / "policy", nan_scores), ORDER))
+    with caplog.at_level(logging.ERROR, logger="edge_explorer.runtime.daemon"):
+        flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=6.0), policy=policy)
+    assert any(
+        "the goal policy failed" in m and "the frontier planner explores from here" in m for m in caplog.messages
+    )
+    assert flight.report.waypoint_sources.get("frontier", 0) > 0 and "policy" not in flight.report.waypoint_sources
     assert flight.vehicle.collisions == 0
 
 
@@ -551,19 +563,6 @@ def test_a_predictor_failing_in_flight_is_dropped_not_fatal(raster, tmp_path, ca
     assert any("the predictor failed" in m and "flying on without it" in m for m in caplog.messages)
 
 
-def test_a_policy_that_makes_no_progress_hands_over_to_the_frontier_planner(raster):
-    config = replace(CONFIG, policy_window=3, policy_min_gain_m2=0.3)
-    daemon = Daemon(config, MavlinkLink(LinkConfig(connect="udpout:127.0.0.1:9")), source=None)  # type: ignore[arg-type]
-    daemon.policy = object()  # type: ignore[assignment] - only its presence matters here
-    maps = ObservedMaps.empty(raster.grid)
-    for step in range(3):  # 0.2 m² more every decision (five more 0.20 m cells): progress
-        maps.apply_patch(0, 0, np.full((4, 20 * (step + 1)), FREE, dtype=np.int8))
-        assert not daemon._policy_stalled(maps) and not daemon._frontier_decides
-    for _ in range(3):  # nothing new for three decisions: the window's gain drops below 0.3 m²
-        stalled = daemon._policy_stalled(maps)
-    assert stalled and daemon._frontier_decides and daemon._policy_stalled(maps)
-
-
 # ---- models ------------------------------------------------------------------------------------------------------
 
 
@@ -743,7 +742,7 @@ def test_the_runtime_path_imports_no_torch_tensorflow_or_sb3(tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["planner"] == "drl" and summary["backends"]["predictor"] == "onnxruntime-cpu"
     assert summary["waypoint_sources"].get("policy", 0) > 0
-    assert {"predictor", "thresholding", "ego", "policy"} <= set(summary["stages_ms"])
+    assert {"predictor", "thresholding", "planner", "policy"} <= set(summary["stages_ms"])
     assert summary["collisions"] == 0
     rss = summary["rss_at_end_mb"]
     assert rss["anon"] > 10 and rss["file"] > 10 and summary["peak_rss_mb"] >= 0.9 * (rss["anon"] + rss["file"])

@@ -10,13 +10,14 @@ One process, one loop (:class:`Daemon`), no torch. Around the loop the parts it 
 * **Per decision** (one per step period, 1 s by default, the period of the shared action table: a decision is due
   when the vehicle's reference reaches the previous waypoint, and is taken on the last frame before that, so the
   new segment starts without a pause): project both maps, run the predictor and threshold its output (when a
-  predictor is loaded), measure coverage against the plan (when one is known), build the policy observation and
-  run the policy (or the Nearest Frontier planner), turn the action into a waypoint through the action table, check
-  it on the observed high-res map (:mod:`edge_explorer.plan.waypoint`: the policy's choice, else the frontier
-  planner's, else hover, else hold) and plan a minimum-jerk segment to it
-  (:func:`~edge_explorer.plan.trajectory.min_jerk_segment`). Without a policy the waypoint does not depend on the
-  prediction (the frontier planner decides on the observed map, as in the benchmark's ``+pred`` methods), so the
-  predictor then runs right after the waypoint is out, off the frame-in → waypoint-out path.
+  predictor is loaded), measure coverage against the plan (when one is known), ask the goal planner for the next
+  action — the learned goal policy's planner (:class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`: the
+  policy observation in, a goal cell out, the goal flown along observed free space) when a policy is loaded, else
+  ``exploration_planner`` — turn the action into a waypoint through the action table, check it on the observed
+  high-res map (:mod:`edge_explorer.plan.waypoint`: the planner's choice, else hover, else hold) and plan a
+  minimum-jerk segment to it (:func:`~edge_explorer.plan.trajectory.min_jerk_segment`). With Nearest Frontier the
+  waypoint does not depend on the prediction (it decides on the observed map, as in the benchmark's ``+pred``
+  methods), so the predictor then runs right after the waypoint is out, off the frame-in → waypoint-out path.
 * **Setpoints**: :class:`SetpointFeeder`, a thread, samples the active segment at the setpoint rate and hands it to
   :meth:`~edge_explorer.runtime.mavlink_link.MavlinkLink.set_target`; the link streams it (with its heartbeat) to
   the autopilot.
@@ -49,8 +50,9 @@ or a failsafe took over: the daemon ends the run instead of taking control back;
 link was lost, or right after the daemon's own setpoint stream stalled (the process got no CPU time for 0.5 s:
 PX4's offboard-loss failsafe), the daemon re-engages OFFBOARD once the link is back.
 
-**A policy that makes no progress** (the observed area grew by less than ``policy_min_gain_m2`` over its last
-``policy_window`` decisions) hands over to the frontier planner for the rest of the flight, said in the log.
+**A learned goal policy that fails** (its model raises or answers non-finite scores) hands over to the configured
+frontier planner for the rest of the flight, said in the log. Its goals are flown by the same goal-planner loop as
+every planner's, through observed free space, so it cannot choose a collision.
 
 **The end.** Exploration ends at ``coverage_goal`` (predicted coverage with a predictor, observed without), at
 ``time_limit_s``, or when the frontier planner has nothing left (after giving the targets it dropped

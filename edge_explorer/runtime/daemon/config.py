@@ -40,15 +40,11 @@ class DaemonConfig:
     max_hold_s: float = 60.0  # inputs not back after this long: end the flight (the autopilot's failsafe takes over)
     reanchor_distance_m: float = 0.5
     footprint_clear_m: float = 0.2  # flown space counted as free (below the 0.25 m robot radius; 0 disables)
-    # The goal planner that explores (and takes over from a policy): "frontier" (Nearest Frontier on the observed
-    # map) or "predfrontier" (the predictive expert: goals on the fused map, DESIGN.md §5), plan/baselines.PLANNERS.
+    # The goal planner that explores without a learned policy (and takes over from one that fails): "frontier"
+    # (Nearest Frontier on the observed map) or "predfrontier" (the predictive expert: goals on the fused map,
+    # DESIGN.md §5), plan/baselines.PLANNERS.
     exploration_planner: str = "frontier"
-    policy_hover_limit: int = 3  # consecutive policy hovers after which the frontier planner decides
-    frontier_retries: int = 1  # times the frontier planner's dropped targets get another chance before "explored"
-    # The policy hands over to the frontier planner for the rest of the flight when the observed area grew by less
-    # than policy_min_gain_m2 over its last policy_window decisions (0 disables the watchdog).
-    policy_window: int = 60
-    policy_min_gain_m2: float = 8.0  # the frontier planner observes ~25 m² a minute on A-D, ~5 near the end
+    frontier_retries: int = 1  # times the planner's dropped targets get another chance before "explored"
     progress_every_s: float = 5.0
     band: HeightBand = field(default_factory=HeightBand)
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -66,8 +62,8 @@ class DaemonConfig:
             raise ValueError(f"coverage_goal must be in (0, 1], got {self.coverage_goal}")
         if self.autopilot not in AUTOPILOT_MODES:
             raise ValueError(f"autopilot must be one of {sorted(AUTOPILOT_MODES)}, got {self.autopilot!r}")
-        if min(self.frontier_retries, self.policy_hover_limit, self.policy_window, self.policy_min_gain_m2) < 0:
-            raise ValueError("frontier_retries, policy_hover_limit, policy_window and policy_min_gain_m2 must be ≥ 0")
+        if self.frontier_retries < 0:
+            raise ValueError(f"frontier_retries must be ≥ 0, got {self.frontier_retries}")
         if self.setpoint_rate_hz < 10:
             raise ValueError(f"setpoint_rate_hz must be ≥ 10 (DESIGN.md §8), got {self.setpoint_rate_hz}")
         positive = (

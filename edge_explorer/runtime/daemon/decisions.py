@@ -3,21 +3,21 @@
 A decision is due when the vehicle's reference reaches the previous waypoint, and is taken on the last frame before
 that, so the new segment starts without a pause. It projects both voxel maps (the flown footprint counted free),
 runs the predictor and thresholds its output (when one is loaded), records coverage, then tries the candidate
-actions best first, lazily (:meth:`DecisionPipeline._candidates`): the learned planner's
-(:meth:`DecisionPipeline._policy_action`, the seam where a learned planner plugs in), the Nearest Frontier
-planner's, the way home's, hover — the first one the safety check on the observed high-res map accepts
-(:class:`~edge_explorer.plan.waypoint.WaypointPlanner`) becomes the waypoint, and a minimum-jerk segment to it goes
-to the setpoint stream. Without a policy the waypoint does not depend on the prediction, so the predictor then runs
-right after the waypoint is out, off the frame-in → waypoint-out path.
+actions best first, lazily (:meth:`DecisionPipeline._candidates`): the goal planner's — the learned goal policy's
+(:class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`) when one is loaded, else the configured frontier
+planner's, the very objects the benchmark flies — the way home's, hover — the first one the safety check on the
+observed high-res map accepts (:class:`~edge_explorer.plan.waypoint.WaypointPlanner`) becomes the waypoint, and a
+minimum-jerk segment to it goes to the setpoint stream. With Nearest Frontier the waypoint does not depend on the
+prediction, so the predictor then runs right after the waypoint is out, off the frame-in → waypoint-out path.
 
 **Where a step starts.** The autopilot tracks a moving position setpoint with a lag, so a step starts from the
 *reference* (the end of the previous segment), not from the lagging odometry; the safety check uses the odometry
 position. When the vehicle is more than ``reanchor_distance_m`` off its reference, the next step starts at rest at
 the odometry pose.
 
-**A policy that makes no progress** (the observed area grew by less than ``policy_min_gain_m2`` over its last
-``policy_window`` decisions) hands over to the frontier planner for the rest of the flight. When the frontier
-planner has nothing left while frontier cells remain, its dropped targets get ``frontier_retries`` more chances."""
+**A policy that fails** (its model raises, or answers non-finite scores) hands over to the configured frontier
+planner for the rest of the flight, said in the log. When the planner has nothing left while frontier cells
+remain, its dropped targets get ``frontier_retries`` more chances."""
 
 from __future__ import annotations
 
@@ -29,7 +29,6 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from edge_explorer.mapping.ego import observation_from_maps
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import project
 from edge_explorer.plan.follow import FreeSpace
@@ -46,16 +45,13 @@ log = logging.getLogger(__name__)
 
 
 class DecisionPipeline:
-    """The daemon's decisions (see the module docstring). Owns the previous action and the policy's hover count,
-    progress window and hand-over, the frontier retries; reads the daemon's maps, flown footprint, models,
-    ``frontier`` planner, ``table``, ``_feeder`` and phase."""
+    """The daemon's decisions (see the module docstring). Owns the previous action, the policy's hand-over and
+    the frontier retries; reads the daemon's maps, flown footprint, models, ``frontier`` (the goal planner that
+    explores), ``table``, ``_feeder`` and phase."""
 
     def _init_decisions(self) -> None:
         self._previous_action = int(Action.HOVER)
-        self._policy_hovers = 0
         self._frontier_retries = 0
-        self._policy_areas_m2: list[float] = []  # observed area at each policy decision (the watchdog's window)
-        self._policy_handed_over = False
         self._candidate_s = 0.0
 
     def _step_start(self, now: float, odometry: Odometry) -> tuple[TrajectoryState, float]:
@@ -90,13 +86,12 @@ class DecisionPipeline:
             high[(self._flown != 0) & (high == UNKNOWN)] = FREE
             low, low_grid = project(self.maps.low, cfg.band)
         maps = ObservedMaps(high_grid, low_grid, high, low)
-        high_cell = _cell(high_grid, pose)
         low_cell = _cell(low_grid, pose)
-        # The prediction feeds the policy's observation and the coverage count. When the frontier planner decides
+        # The prediction feeds the goal planner's fused map and the coverage count. When Nearest Frontier decides
         # (no policy, or the policy handed over) the waypoint does not depend on it, so it runs once the waypoint is
         # out (the coverage goal then ends exploration one decision later).
         predict_after = (
-            self.predictor is not None and self._frontier_decides and self.config.exploration_planner == "frontier"
+            self.predictor is not None and self.policy is None and self.config.exploration_planner == "frontier"
         )
         thresholded = None
         if not predict_after:
@@ -107,7 +102,7 @@ class DecisionPipeline:
         self._candidate_s = 0.0
         start = time.perf_counter()
         planner = WaypointPlanner(self.table, FreeSpace.from_codes(high, high_grid), cfg.follow.safe_distance_m)
-        candidates = self._candidates(maps, pose, high_cell, low_cell, thresholded)
+        candidates = self._candidates(maps, pose, thresholded)
         waypoint = planner.first_safe((odometry.x_m, odometry.y_m), pose, self._previous_action, candidates)
         end = TrajectoryState(
             np.array([waypoint.x_m, waypoint.y_m, cfg.flight_height_m, waypoint.yaw_rad]),
@@ -115,7 +110,7 @@ class DecisionPipeline:
             np.zeros(4),
         )
         self._feeder.follow(min_jerk_segment(start_state, end, self.table.model.step_s), start_s)
-        # The candidates' own stages (ego, policy, planner) ran inside this block and are timed on their own.
+        # The candidates' own stage (planner, the policy inside it) ran inside this block and is timed on its own.
         self.timings.add("waypoint_trajectory", time.perf_counter() - start - self._candidate_s)
         self._previous_action = waypoint.action
         self._decisions += 1
@@ -162,34 +157,23 @@ class DecisionPipeline:
         self._candidate_s += time.perf_counter() - start
 
     def _candidates(
-        self,
-        maps: ObservedMaps,
-        pose: tuple[float, float, float],
-        high_cell: tuple[int, int],
-        low_cell: tuple[int, int],
-        thresholded: np.ndarray | None,
+        self, maps: ObservedMaps, pose: tuple[float, float, float], thresholded: np.ndarray | None
     ) -> Iterator[tuple[str, int | None]]:
         """The actions to try, best first, computed lazily: a fallback only runs when the one before was unsafe.
 
-        Exploring: the policy's action (unless it hovered more than ``policy_hover_limit`` times in a row), then
-        the frontier planner's (which also ends exploration when nothing is left to explore and no policy runs).
+        Exploring: the goal planner's action (which also ends exploration when nothing is left to explore).
         Returning: the next action along the way home. Then hover. Nothing once home: the vehicle holds.
         """
         previous = self._previous_action
         if self._phase == "exploring":
-            if self.policy is not None and not self._policy_stalled(maps):
-                action = self._policy_action(maps, pose, high_cell, low_cell, thresholded, previous)
-                self._policy_hovers = self._policy_hovers + 1 if action == Action.HOVER else 0
-                if self._policy_hovers <= self.config.policy_hover_limit:
-                    yield "policy", action
             with self._candidate_stage("planner"):
-                action = self.frontier.act(maps, pose, previous, thresholded)
-                if action is None and self._frontier_decides and self._retry_frontiers(maps):
-                    action = self.frontier.act(maps, pose, previous, thresholded)
-            if action is None and self._frontier_decides:
+                action = self._planner_action(maps, pose, previous, thresholded)
+                if action is None and self._retry_frontiers(maps):
+                    action = self._planner_action(maps, pose, previous, thresholded)
+            if action is None:
                 self._finish_exploring("explored")
             else:
-                yield "frontier", action
+                yield "policy" if self.policy is not None else "frontier", action
         if self._phase == "returning":
             with self._candidate_stage("planner"):
                 action = self._home_action(maps, pose)
@@ -197,56 +181,32 @@ class DecisionPipeline:
         if self._phase in ("exploring", "returning"):
             yield "hover", int(Action.HOVER)
 
-    def _policy_action(
-        self,
-        maps: ObservedMaps,
-        pose: tuple[float, float, float],
-        high_cell: tuple[int, int],
-        low_cell: tuple[int, int],
-        thresholded: np.ndarray | None,
-        previous: int,
-    ) -> int:
-        """The learned planner's action for this step: the policy observation built from the maps (DESIGN.md §5,
-        stage "ego") and the policy's choice (stage "policy"). The one place the learned planner is called: another
-        learned planner plugs in here, behind the same arguments."""
+    def _policy_scores(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        """The goal policy's scores for one decision of the goal planner, timed as stage "policy" (inside the
+        stage "planner" that asks for them)."""
         assert self.policy is not None
-        with self._candidate_stage("ego"):
-            thres = thresholded if thresholded is not None else maps.low
-            observation = observation_from_maps(
-                maps.high,
-                thres,
-                maps.high_grid.resolution_m,
-                maps.low_grid.resolution_m,
-                high_cell,
-                low_cell,
-                pose[2],
-                previous,
+        with self.timings.timed("policy"):
+            return self.policy.scores(observation)
+
+    def _planner_action(
+        self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int, thresholded: np.ndarray | None
+    ) -> int | None:
+        """The exploring goal planner's action; a learned policy that fails hands over to the configured frontier
+        planner here, for the rest of the flight (a model that fails in flight must not take the daemon down)."""
+        try:
+            return self.frontier.act(maps, pose, previous, thresholded)
+        except Exception as exc:  # noqa: BLE001 - see the docstring
+            if self.policy is None:
+                raise
+            log.error(
+                "the goal policy failed (%s: %s): the %s planner explores from here",
+                type(exc).__name__,
+                exc,
+                self.config.exploration_planner,
             )
-        with self._candidate_stage("policy"):
-            action = self.policy.act(observation)
-        return action
-
-    @property
-    def _frontier_decides(self) -> bool:
-        """Whether the frontier planner is the one exploring (no policy, or the policy handed over)."""
-        return self.policy is None or self._policy_handed_over
-
-    def _policy_stalled(self, maps: ObservedMaps) -> bool:
-        """The policy's progress watchdog (see :class:`DaemonConfig`): True once the policy has handed over."""
-        cfg = self.config
-        if self._policy_handed_over or cfg.policy_window == 0:
-            return self._policy_handed_over
-        self._policy_areas_m2.append(maps.observed_area_m2())
-        if len(self._policy_areas_m2) > cfg.policy_window:
-            gain_m2 = self._policy_areas_m2[-1] - self._policy_areas_m2.pop(0)
-            if gain_m2 < cfg.policy_min_gain_m2:
-                self._policy_handed_over = True
-                log.warning(
-                    "the policy observed %.1f m² in its last %d decisions: the frontier planner explores from here",
-                    gain_m2,
-                    cfg.policy_window,
-                )
-        return self._policy_handed_over
+            self.policy = None
+            self.frontier = self._make_planner()
+            return self.frontier.act(maps, pose, previous, thresholded)
 
     def _retry_frontiers(self, maps: ObservedMaps) -> bool:
         """Whether to give the frontier planner's dropped targets another chance (and reset it) when it has nothing

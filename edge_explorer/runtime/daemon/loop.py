@@ -12,7 +12,8 @@ import time
 from collections.abc import Callable
 
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
-from edge_explorer.plan.frontier import NearestFrontier, PlannerConfig
+from edge_explorer.plan.frontier import GoalPlanner, NearestFrontier, PlannerConfig
+from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import PredictorRuntime
@@ -59,12 +60,7 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
         self.table = table if table is not None else load_action_table()
         self.recorder = recorder
         self.timings = StageTimings()
-        # The goal planner with this daemon's follower settings: the fallback, or the planner
-        planner_config = PlannerConfig(follow=config.follow)
-        if config.exploration_planner == "predfrontier":
-            self.frontier = PredictiveFrontier(PredictiveConfig(planner=planner_config), self.table)
-        else:
-            self.frontier = NearestFrontier(planner_config, self.table)
+        self.frontier = self._make_planner()
         self.maps: VoxelMaps | None = None
         self._region = region
         self._feeder = SetpointFeeder(link, config.setpoint_rate_hz, self.timings)
@@ -72,6 +68,16 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
         self._init_watchdog()
         self._init_decisions()
         self._init_record()
+
+    def _make_planner(self) -> GoalPlanner:
+        """The goal planner that explores, with this daemon's follower settings: the learned goal policy when one
+        is loaded, else ``config.exploration_planner``; also the one a failing policy hands over to (without it)."""
+        planner_config = PlannerConfig(follow=self.config.follow)
+        if self.policy is not None:
+            return GoalPolicyPlanner(self._policy_scores, PredictiveConfig(planner=planner_config), self.table)
+        if self.config.exploration_planner == "predfrontier":
+            return PredictiveFrontier(PredictiveConfig(planner=planner_config), self.table)
+        return NearestFrontier(planner_config, self.table)
 
     @property
     def planner_name(self) -> str:

@@ -53,7 +53,7 @@ def choose_models(
     ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
     when it is missing or cannot be loaded; ``auto`` uses the policy only when its card says it is flight-ready
     (``flight_ready.ready``: the building evaluation of these weights passed, see
-    :func:`edge_explorer.learn.policy_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
+    :func:`edge_explorer.learn.goal_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
     why; ``frontier`` never loads the policy. The predictor (``models_dir/predictor/card.json``)
     is used when it loads; otherwise the run goes on without it (coverage = observed) and says why.
     ``model_orders`` (the device profile's per-model orders) replaces ``backend_order`` for the models it names.

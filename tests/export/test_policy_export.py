@@ -1,4 +1,4 @@
-"""The goal policy's export: its network view, the masked goal gate, and round trips on a tiny GoalNet flown on the
+"""The (goal) policy's export: its network view, the masked goal gate, and round trips on a tiny GoalNet flown on the
 two-room plan (the val split is replaced by it, so the rollouts take seconds)."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import torch
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.export import calibration, cli, gates, pipeline
-from edge_explorer.export.networks import goal_policy_network
+from edge_explorer.export.networks import policy_network
 from edge_explorer.export.onnx_formats import export_fp32, quantize_int8
 from edge_explorer.export.recipe import load_recipe
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig
@@ -34,8 +34,8 @@ G = GOAL_GRID_CELLS
 GOAL_ONNX_OPS = {"Conv", "Relu", "MaxPool", "Pad", "Resize", "Concat", "Add", "Sub", "Mul", "Unsqueeze", "Gemm",
                  "Slice", "Squeeze"}  # fmt: skip
 GOAL_RECIPE = """
-model = "goal_policy"
-checkpoint = "ckpt/goal_policy.safetensors"
+model = "policy"
+checkpoint = "ckpt/policy.safetensors"
 [calibration]
 plans = 2
 held_back_plans = 2
@@ -64,7 +64,7 @@ def two_rooms_as_val(monkeypatch) -> None:
 
 def goal_recipe(root: Path, text: str = GOAL_RECIPE) -> Path:
     (root / "quantize").mkdir(parents=True, exist_ok=True)
-    path = root / "quantize" / "goal_policy.toml"
+    path = root / "quantize" / "policy.toml"
     path.write_text(text)
     return path
 
@@ -99,7 +99,7 @@ def test_the_goal_gate_counts_only_the_valid_cells():
 
 # ---- the network view ----------------------------------------------------------------------------------------------
 def test_the_goal_policy_onnx_has_only_the_logits_edge_tpu_ops_and_matches_torch(tmp_path):
-    network = goal_policy_network(tiny_goal_net())
+    network = policy_network(tiny_goal_net())
     assert network.inputs == {"high": (1, 237, 237), "thres": (1, 237, 237), "last_action": (1, 6)}
     assert network.outputs == ("logits",)
     assert {"edge_explorer.goal_grid", "edge_explorer.input_encoding"} <= set(network.metadata)
@@ -127,7 +127,7 @@ def test_the_goal_policy_onnx_has_only_the_logits_edge_tpu_ops_and_matches_torch
 def test_goal_policy_int8_onnx_gate_reports_the_masked_agreement_it_measures(tmp_path, two_rooms_as_val):
     net = tiny_goal_net()
     recipe = load_recipe(goal_recipe(tmp_path))
-    report = pipeline.run_export(recipe, tmp_path / "models", network=goal_policy_network(net), log=quiet)
+    report = pipeline.run_export(recipe, tmp_path / "models", network=policy_network(net), log=quiet)
     fp32, int8 = (next(r for r in report.rows if r.format == f) for f in ("onnx_fp32", "onnx_int8"))
     assert fp32.passed  # parity with torch
     figures = int8.gate.figures
@@ -135,9 +135,9 @@ def test_goal_policy_int8_onnx_gate_reports_the_masked_agreement_it_measures(tmp
     assert int8.passed == (figures["top1_agreement"] >= 0.98)
     card = report.card["export"]
     assert card["calibration"]["held_back_observations"] == figures["observations"]
-    assert card["metadata"]["edge_explorer.model"] == "goal_policy" and card["graph"]["macs"] > 0
+    assert card["metadata"]["edge_explorer.model"] == "policy" and card["graph"]["macs"] > 0
     # the same figure, recomputed outside the pipeline from the same decisions and calibration
-    network = goal_policy_network(net)
+    network = policy_network(net)
     obs = pipeline.collect_observations(recipe, network)
     export_fp32(network, tmp_path / "fp32.onnx")
     quantize_int8(tmp_path / "fp32.onnx", tmp_path / "int8.onnx", obs.calibration, recipe.quantization)
@@ -173,7 +173,7 @@ def test_the_goal_policy_tflite_is_full_integer_and_edge_tpu_clean(tmp_path, two
     text = GOAL_RECIPE.replace('"onnx_int8"]', '"tflite_int8"]')
     net = tiny_goal_net()
     report = pipeline.run_export(load_recipe(goal_recipe(tmp_path, text)), tmp_path / "models",
-                                 network=goal_policy_network(net), log=quiet)  # fmt: skip
+                                 network=policy_network(net), log=quiet)  # fmt: skip
     row = next(r for r in report.rows if r.format == "tflite_int8")
     assert row.details["edgetpu"]["unsupported_ops"] == {}, row.details["edgetpu"]
     assert row.details["xnnpack"]["delegated_nodes"] > 0
@@ -190,7 +190,7 @@ def test_export_all_skips_a_recipe_whose_checkpoint_is_not_trained_yet(tmp_path,
     with pytest.raises(EdgeExplorerError, match="no recipe .* has its checkpoint"):
         cli.export_cli(Namespace(all=True, recipe=None, out=tmp_path / "models", json=None))
     out = capsys.readouterr().out
-    assert "== goal_policy: skipped, checkpoint" in out and "goal_policy.safetensors does not exist" in out
+    assert "== policy: skipped, checkpoint" in out and "policy.safetensors does not exist" in out
 
     shutil.copy(Path(__file__).parent / "data" / "tiny_unet.safetensors", tmp_path / "predictor.safetensors")
     (tmp_path / "quantize" / "predictor.toml").write_text(
@@ -205,4 +205,4 @@ def test_export_all_skips_a_recipe_whose_checkpoint_is_not_trained_yet(tmp_path,
 
     monkeypatch.setattr(pipeline, "run_export", fake_run_export)
     assert cli.export_cli(Namespace(all=True, recipe=None, out=tmp_path / "models", json=None)) == 0
-    assert ran == ["predictor"] and "goal_policy: skipped" in capsys.readouterr().out
+    assert ran == ["predictor"] and "policy: skipped" in capsys.readouterr().out
