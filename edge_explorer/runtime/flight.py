@@ -32,14 +32,8 @@ def fly(options: RunOptions) -> dict[str, Any]:
     """Fly one run as ``edge-explorer run`` does and write its outputs; returns the summary (also in JSON)."""
     from contextlib import ExitStack
 
-    from edge_explorer.bench.explore import run_seed
-    from edge_explorer.mapping.voxels import VoxelRegion
     from edge_explorer.profiling.device_profile import load_profile
-    from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
-    from edge_explorer.runtime.depth_sources import Recorder
-    from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
-    from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
-    from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
+    from edge_explorer.runtime.kernels import kernels_warm, release_llvm_pages, warm_kernels
     from edge_explorer.world.catalog import load_building
 
     out = options.out_dir
@@ -50,6 +44,27 @@ def fly(options: RunOptions) -> dict[str, Any]:
     try:
         profile = load_profile(options.profile)
         raster = load_building(options.plan) if options.plan is not None else None
+        start = None
+        if options.connect is None:
+            if raster is None:
+                raise ValueError("the simulated vehicle needs a plan")
+            start = _start_pose(options.plan, options.seed)
+        if raster is not None:
+            # Before the flight's other imports: the flight's numba kernels compiled in a child (on a fresh install)
+            # and loaded here, then LLVM's pages handed back (runtime/kernels.py).
+            if not kernels_warm():
+                _compile_kernels(raster)
+                warm_kernels(raster)
+            log.info("numba kernels loaded; %.1f MB of LLVM's pages released", release_llvm_pages())
+
+        from edge_explorer.bench.explore import run_seed
+        from edge_explorer.mapping.voxels import VoxelRegion
+        from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
+        from edge_explorer.runtime.depth_sources import Recorder
+        from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
+        from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
+        from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
+
         noise_seed = run_seed(options.seed, raster.name, options.run_index) if raster is not None else options.seed
         models = choose_models(
             options.models_dir, options.planner, profile.backend_order, model_orders=profile.model_orders
@@ -69,12 +84,9 @@ def fly(options: RunOptions) -> dict[str, Any]:
         if options.time_limit_s is not None:
             config = replace(config, time_limit_s=options.time_limit_s)
         with ExitStack() as stack:
-            start = None
             vehicle = None
             if options.connect is None:
-                if raster is None:
-                    raise ValueError("the simulated vehicle needs a plan")
-                start = _start_pose(options.plan, options.seed)
+                assert raster is not None and start is not None
                 vehicle = stack.enter_context(_simulated_vehicle(raster, start, noise_seed, options.autopilot))
                 connect = f"udpout:127.0.0.1:{vehicle.address[1]}"
             else:
@@ -103,7 +115,9 @@ def fly(options: RunOptions) -> dict[str, Any]:
             collisions = vehicle.state().collisions if vehicle is not None else None
             peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
             rss_now_mb = resident_memory_mb()
-        memory_mb = {"peak_rss_mb": peak_rss_mb, "rss_at_end_mb": rss_now_mb}
+        # The start pose's and the kernel compiler's processes (the largest of them; the picture's comes later).
+        children_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        memory_mb = {"peak_rss_mb": peak_rss_mb, "rss_at_end_mb": rss_now_mb, "children_peak_rss_mb": children_mb}
         summary = run_summary(
             options, profile, models, raster, start, noise_seed, report, collisions, vehicle_cpu_s, memory_mb, daemon
         )
@@ -117,49 +131,59 @@ def fly(options: RunOptions) -> dict[str, Any]:
 
 def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
     """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.bench.explore.start_pose`), drawn in
-    a forked child process that also renders one depth frame there and runs the daemon's mapping kernels on it. None
-    of this belongs to the flight whose peak RSS the run reports: the draw builds the training simulator (~50 MB),
-    and on a fresh clone the first render and the first fused frame compile numba kernels (~30 MB of LLVM and half a
-    second of the first decisions). The child writes them to numba's on-disk cache, so the daemon only loads them —
-    as on a drone whose install step compiled them."""
+    a new interpreter with numba's JIT off. The draw builds the training simulator (~50 MB) and resets it, which
+    would compile a dozen numba kernels (LLVM's code and working memory: ~120 MB on a fresh install) whose results
+    the pose does not depend on: the pose is drawn from the seeded generator and checked against the plan's
+    clearance before the simulator's sensor runs. Interpreted, the draw takes ~0.4 s and ~180 MB, none of it in the
+    flight's process (tests/runtime/test_kernels.py checks the pose is the same)."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork")) as pool:
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=spawn, initializer=_numba_jit_off) as pool:
         return pool.submit(_draw_start_pose, plan, seed).result()
 
 
+def _numba_jit_off() -> None:
+    """In the start pose's interpreter, before numba's import: njit functions stay plain Python functions."""
+    os.environ["NUMBA_DISABLE_JIT"] = "1"
+
+
 def _draw_start_pose(plan: str, seed: int) -> tuple[float, float, float]:
-    from edge_explorer.bench.explore import start_pose
-    from edge_explorer.sim.camera import CameraPose, DepthCamera
+    """The start pose's child's work. Where numba's JIT is on (any caller but :func:`_start_pose`'s interpreter),
+    the flight's kernels run first (:func:`~edge_explorer.runtime.kernels.warm_kernels`, then LLVM's pages are
+    released), so that one call fills numba's cache for a whole flight."""
+    import numba
+
     from edge_explorer.world.catalog import load_building
 
     raster = load_building(plan)
+    if not numba.config.DISABLE_JIT:
+        from edge_explorer.runtime.kernels import release_llvm_pages, warm_kernels
+
+        warm_kernels(raster)
+        release_llvm_pages()
+
+    from edge_explorer.bench.explore import start_pose
+
     x_m, y_m, yaw_rad = start_pose(raster, seed)
-    camera = DepthCamera(raster)
-    pose = CameraPose(float(x_m), float(y_m), 1.7, float(yaw_rad))
-    _compile_daemon_kernels(raster, camera.config.intrinsics, pose, camera.render(pose))
     return float(x_m), float(y_m), float(yaw_rad)
 
 
-def _compile_daemon_kernels(raster: Any, intrinsics: Any, pose: Any, depth_m: Any) -> None:
-    """Call each numba kernel of the daemon's loop once, with the loop's argument types, on one rendered frame:
-    fusion, projection, the coverage count and the follower's swept-path test (numba caches one machine-code
-    version per argument types, so these calls fill the cache the flight loads from)."""
-    import numpy as np
+def _compile_kernels(raster: Any) -> None:
+    """:func:`~edge_explorer.runtime.kernels.warm_kernels` in a forked child process: on a fresh install numba
+    compiles the flight's kernels there (LLVM's code and working memory, ~100 MB, and ~2 s) into its on-disk
+    cache, so the flight's process only loads them — as on a drone whose install step compiled them. Forked before
+    the flight's heavier imports (pymavlink, LiteRT, the planners), so the child holds little else."""
+    import multiprocessing
 
-    from edge_explorer.mapping.projection import project
-    from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
-    from edge_explorer.runtime.daemon import CoverageTruth, DaemonConfig, band_z_range_m
-    from edge_explorer.sim.dynamics import swept_path_blocked
+    from edge_explorer.runtime.kernels import warm_kernels
 
-    config = DaemonConfig()
-    maps = VoxelMaps(VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)), config.fusion)
-    maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
-    high, high_grid = project(maps.high, config.band)
-    low, low_grid = project(maps.low, config.band)
-    CoverageTruth(raster).metrics(low, low_grid, None)
-    swept_path_blocked(np.zeros(high.shape, dtype=bool), high_grid, (pose.x_m, pose.y_m), (pose.x_m, pose.y_m))
+    child = multiprocessing.get_context("fork").Process(target=warm_kernels, args=(raster,), name="compile-kernels")
+    child.start()
+    child.join()
+    if child.exitcode != 0:
+        raise RuntimeError(f"compiling the flight's numba kernels failed (exit code {child.exitcode})")
 
 
 def _simulated_vehicle(raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any:

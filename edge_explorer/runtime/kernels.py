@@ -1,0 +1,115 @@
+"""The numba kernels of a flight: loaded before take-off, then LLVM's pages handed back.
+
+The daemon's per-frame work (fusion, projection, the coverage count, the follower's swept-path test) and the
+simulated depth camera are numba kernels. numba needs LLVM (``libllvmlite.so``, 180 MB on disk) to compile a kernel
+or to load its machine code from numba's on-disk cache, and for nothing else: a loaded kernel is a function pointer.
+Yet importing numba maps ~65–90 MB of LLVM's code, and loading the kernels touches more; those pages stay in the
+process's resident set for the whole flight — the largest single item of the daemon's memory
+(docs/runtime/README.md, "Memory").
+
+So a flight does, in this order, before its other imports (pymavlink, LiteRT, the planners, the daemon):
+
+1. :func:`warm_kernels` — every kernel of the flight's loop is called once on one rendered frame of the building,
+   with the loop's argument types: numba compiles it (empty cache) or loads it from the cache.
+2. :func:`release_llvm_pages` — the process unmaps its resident pages of LLVM's read-only, unmodified mappings
+   (``madvise(MADV_DONTNEED)``). They are clean file pages: they stay in the page cache and fault back in if a
+   kernel is ever compiled again, so nothing can break — a kernel first called later only costs its load again.
+
+The start pose's child process (:func:`edge_explorer.runtime.flight._start_pose`) does step 1 first on a fresh
+install, so numba compiles (LLVM's working memory, ~0.5 s) in that child and the daemon only loads.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import re
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+_MADV_DONTNEED = 4
+_warm = False
+_MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(.*)$")
+
+
+def warm_kernels(raster: Any) -> None:
+    """Run each numba kernel of a simulated flight over ``raster`` once, with the flight's argument types: the depth
+    camera's render, fusion into both voxel maps, projection, the coverage count and the follower's swept-path test
+    (numba keeps one machine-code version per argument types, so these calls compile or load exactly those)."""
+    import numpy as np
+
+    from edge_explorer.mapping.metrics import map_metrics
+    from edge_explorer.mapping.projection import HeightBand, project
+    from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
+    from edge_explorer.sim.camera import CameraPose, DepthCamera
+    from edge_explorer.sim.dynamics import swept_path_blocked
+    from edge_explorer.world.grid import LOW_RES_M
+
+    band = HeightBand()  # the daemon's defaults (DaemonConfig.band, .fusion)
+    camera = DepthCamera(raster)
+    grid = raster.grid
+    row, col = (int(v) for v in np.argwhere(raster.interior)[0])
+    x_m, y_m = (float(v) for v in grid.center_of(row, col))
+    pose = CameraPose(x_m, y_m, band.flight_z_m, 0.0)
+    depth_m = camera.render(pose)
+    # A 2 m box around the pose (the flight's maps cover the building; the kernels' argument types are the same).
+    region = VoxelRegion((x_m - 1.0, y_m - 1.0, band.min_z_m - LOW_RES_M), (2.0, 2.0, 1.4))
+    maps = VoxelMaps(region, FusionConfig())
+    maps.fuse(depth_m, camera.config.intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
+    high, high_grid = project(maps.high, band)
+    low, _ = project(maps.low, band)
+    coarse = raster.coarsened(LOW_RES_M)
+    truth, interior = coarse.truth_codes(), coarse.interior
+    shape = truth.shape
+    fill = np.zeros(shape, dtype=low.dtype)
+    map_metrics(fill, truth, interior, None)
+    map_metrics(fill, truth, interior, np.zeros(shape, dtype=low.dtype))
+    swept_path_blocked(np.zeros(high.shape, dtype=bool), high_grid, (x_m, y_m), (x_m, y_m))
+    global _warm
+    _warm = True
+
+
+def kernels_warm() -> bool:
+    """Whether :func:`warm_kernels` ran in this process (its kernels are loaded: argument types do not depend on the
+    building)."""
+    return _warm
+
+
+def release_llvm_pages() -> float:
+    """Unmap this process's resident pages of ``libllvmlite.so`` that are read-only and unmodified (its code and
+    constants; not its data or relocated pages); returns the MB released. 0 where /proc or madvise is missing."""
+    try:
+        smaps = Path("/proc/self/smaps").read_text()
+        libc = ctypes.CDLL(None, use_errno=True)
+    except OSError:
+        return 0.0
+    madvise = libc.madvise
+    madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    released_kb = 0
+    for start, end, perms, rss_kb, anon_kb in _mappings(smaps, "libllvmlite"):
+        if "w" in perms or anon_kb or not rss_kb:
+            continue  # written (data, relocations): those pages exist only here
+        if madvise(start, end - start, _MADV_DONTNEED) == 0:
+            released_kb += rss_kb
+    return released_kb / 1024
+
+
+def _mappings(smaps: str, name_part: str) -> list[tuple[int, int, str, int, int]]:
+    """(start, end, perms, Rss kB, Anonymous kB) of each mapping in ``smaps`` whose path contains ``name_part``."""
+    found: list[tuple[int, int, str, int, int]] = []
+    current: list[Any] | None = None
+    for line in smaps.splitlines():
+        head = _MAPPING.match(line)
+        if head is not None:
+            current = None
+            if name_part in head.group(4):
+                current = [int(head.group(1), 16), int(head.group(2), 16), head.group(3), 0, 0]
+                found.append(current)  # type: ignore[arg-type]
+        elif current is not None:
+            if line.startswith("Rss:"):
+                current[3] = int(line.split()[1])
+            elif line.startswith("Anonymous:"):
+                current[4] = int(line.split()[1])
+    return [tuple(m) for m in found]  # type: ignore[misc]

@@ -1,0 +1,102 @@
+"""The flight's memory layout (docs/runtime/README.md, "Memory"): heavy imports only after the numba kernels are
+loaded and LLVM's pages released; the start pose drawn without compiling; no kernel loaded after the release."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from edge_explorer.world.plan import save_plan_json
+from tests.conftest import two_room_plan
+
+ROOT = Path(__file__).resolve().parents[2]
+# What the flight imports after its kernels are loaded and LLVM's pages released (runtime/flight.py: fly).
+HEAVY = ("numba", "llvmlite", "scipy", "cv2", "pymavlink", "ai_edge_litert", "onnxruntime", "matplotlib", "gymnasium")
+
+
+def _python(script: str, **env: str) -> subprocess.CompletedProcess[str]:
+    environment = {**os.environ, "PYTHONPATH": str(ROOT), **env}
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=240, env=environment)
+
+
+def _llvm_rss_kb_script() -> str:
+    return (
+        "from pathlib import Path\n"
+        "from edge_explorer.runtime.kernels import _mappings\n"
+        "print('LLVM_KB', sum(m[3] for m in _mappings(Path('/proc/self/smaps').read_text(), 'libllvmlite')"
+        " if 'w' not in m[2] and not m[4]))\n"
+    )
+
+
+def test_the_flight_entry_point_imports_nothing_heavy():
+    """`edge-explorer run` up to fly(): no numba (LLVM), scipy, OpenCV, pymavlink, LiteRT, … yet — fly() imports
+    them in its own order, the flight's kernels and LLVM's release first."""
+    script = (
+        "import sys\n"
+        "import edge_explorer.cli, edge_explorer.runtime.cli\n"
+        "import edge_explorer.runtime.flight, edge_explorer.runtime.kernels\n"
+        f"print('HEAVY', sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY!r}))\n"
+    )
+    result = _python(script)
+    assert result.returncode == 0, result.stderr
+    assert "HEAVY []" in result.stdout
+
+
+def test_llvm_pages_are_released_and_fault_back_when_needed():
+    """The release unmaps LLVM's read-only pages; compiled kernels still run, and a new one still compiles."""
+    script = (
+        "import numba\n"
+        "from edge_explorer.runtime.kernels import release_llvm_pages\n"
+        "f = numba.njit(lambda x: x * 2 + 1)\n"
+        "assert f(3) == 7\n"
+        + _llvm_rss_kb_script()
+        + "print('RELEASED_MB', release_llvm_pages())\n"
+        + _llvm_rss_kb_script()
+        + "assert f(4) == 9\n"
+        "g = numba.njit(lambda x: x - 1.5)\n"
+        "assert g(4.0) == 2.5\n"
+        "print('OK')\n"
+    )
+    result = _python(script)
+    assert result.returncode == 0, result.stderr
+    before, after = (int(line.split()[1]) for line in result.stdout.splitlines() if line.startswith("LLVM_KB"))
+    released = float(next(line.split()[1] for line in result.stdout.splitlines() if line.startswith("RELEASED_MB")))
+    assert before > 10_000 and after < 2_000 and released * 1024 > 0.8 * before
+    assert "OK" in result.stdout
+
+
+@pytest.mark.slow
+def test_the_start_pose_drawn_without_jit_is_the_benchmarks():
+    from edge_explorer.bench.explore import start_pose
+    from edge_explorer.runtime.flight import _start_pose
+    from edge_explorer.world.catalog import load_building
+
+    for plan, seed in (("A", 0), ("C", 7)):
+        assert _start_pose(plan, seed) == tuple(float(v) for v in start_pose(load_building(plan), seed))
+
+
+@pytest.mark.slow
+def test_a_flight_loads_no_kernel_after_the_release(tmp_path):
+    """From an empty numba cache: the compiler child fills it, the flight's process loads every kernel before the
+    release and none after it (LLVM's pages are still released at the end), and the summary names the children's
+    peak."""
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    out = tmp_path / "out"
+    args = ["run", "--plan", str(plan), "--out", str(out), "--time-limit-s", "3", "--no-return"]
+    script = (
+        "import sys\n"
+        "from edge_explorer.cli import main\n"
+        f"code = main({args + ['--models', str(tmp_path / 'none')]!r})\n" + _llvm_rss_kb_script() + "sys.exit(code)\n"
+    )
+    result = _python(script, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    llvm_kb = int(next(line.split()[1] for line in result.stdout.splitlines() if line.startswith("LLVM_KB")))
+    assert llvm_kb < 4_000, f"{llvm_kb} kB of LLVM's pages came back: a kernel was loaded after the release"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["collisions"] == 0 and summary["children_peak_rss_mb"] > 50
