@@ -36,10 +36,12 @@ _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(.*)$")
 
 def warm_kernels(raster: Any) -> None:
     """Run each numba kernel of a simulated flight over ``raster`` once, with the flight's argument types: the depth
-    camera's render, fusion into both voxel maps, projection, the coverage count and the follower's swept-path test
-    (numba keeps one machine-code version per argument types, so these calls compile or load exactly those)."""
+    camera's render, fusion into both voxel maps, projection, the coverage count, the follower's swept-path test and
+    the learned planner's map inflation (numba keeps one machine-code version per argument types, so these calls
+    compile or load exactly those; tests/runtime/test_kernels.py checks the default flight loads no other)."""
     import numpy as np
 
+    from edge_explorer.mapping.ego import inflate_codes
     from edge_explorer.mapping.metrics import map_metrics
     from edge_explorer.mapping.projection import HeightBand, project
     from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
@@ -67,6 +69,7 @@ def warm_kernels(raster: Any) -> None:
     map_metrics(fill, truth, interior, None)
     map_metrics(fill, truth, interior, np.zeros(shape, dtype=low.dtype))
     swept_path_blocked(np.zeros(high.shape, dtype=bool), high_grid, (x_m, y_m), (x_m, y_m))
+    inflate_codes(high, high_grid.resolution_m)  # the learned planner's observation (mapping/ego.py)
     global _warm
     _warm = True
 

@@ -82,17 +82,17 @@ def test_the_start_pose_drawn_without_jit_is_the_benchmarks():
 
 @pytest.mark.slow
 def test_a_flight_loads_no_kernel_after_the_release(tmp_path):
-    """From an empty numba cache: the compiler child fills it, the flight's process loads every kernel before the
-    release and none after it (LLVM's pages are still released at the end), and the summary names the children's
-    peak."""
+    """The default configuration (the shipped models), from an empty numba cache: the compiler child fills it, the
+    flight's process loads every kernel before the release and none after it (LLVM's pages are still released at
+    the end), and the summary names the children's peak."""
     plan = tmp_path / "rooms.json"
     save_plan_json(two_room_plan(), plan)
     out = tmp_path / "out"
-    args = ["run", "--plan", str(plan), "--out", str(out), "--time-limit-s", "3", "--no-return"]
+    args = ["run", "--plan", str(plan), "--out", str(out), "--time-limit-s", "6", "--no-return"]
     script = (
         "import sys\n"
         "from edge_explorer.cli import main\n"
-        f"code = main({args + ['--models', str(tmp_path / 'none')]!r})\n" + _llvm_rss_kb_script() + "sys.exit(code)\n"
+        f"code = main({args + ['--models', str(ROOT / 'models')]!r})\n" + _llvm_rss_kb_script() + "sys.exit(code)\n"
     )
     result = _python(script, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
     assert result.returncode == 0, result.stdout + result.stderr
