@@ -79,13 +79,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
     except EdgeExplorerError as exc:
         print(f"edge-explorer: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("edge-explorer: interrupted", file=sys.stderr)
         return 130
+    if argv is None:  # the program itself (console script, python -m), not a caller in its own interpreter
+        from edge_explorer.runtime.kernels import exit_without_native_teardown
+
+        exit_without_native_teardown(code)  # a flight skips LLVM's destructors (runtime/kernels.py)
+    return code
 
 
 if __name__ == "__main__":

@@ -21,9 +21,13 @@ install, so numba compiles (LLVM's working memory, ~0.5 s) in that child and the
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import logging
+import os
 import re
+import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +35,7 @@ log = logging.getLogger(__name__)
 
 _MADV_DONTNEED = 4
 _warm = False
+_released = False
 _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(.*)$")
 
 
@@ -96,7 +101,34 @@ def release_llvm_pages() -> float:
             continue  # written (data, relocations): those pages exist only here
         if madvise(start, end - start, _MADV_DONTNEED) == 0:
             released_kb += rss_kb
+    global _released
+    _released = True
     return released_kb / 1024
+
+
+def exit_without_native_teardown(code: int) -> None:
+    """End the program with ``code`` once its work is done, skipping the native libraries' teardown, where this
+    process released LLVM's pages; elsewhere return (the program ends as usual).
+
+    At exit LLVM's static destructors run through its code and fault back ~60 MB of the pages
+    :func:`release_llvm_pages` handed back — after the flight, on top of everything the flight still holds, so the
+    process's high-water mark rose by ~45 MB in its last milliseconds (docs/runtime/README.md, "Memory"). Here the
+    program finishes as Python would — non-daemon threads joined, every ``atexit`` handler run (logging flushed and
+    closed, multiprocessing's children joined), stdout and stderr flushed — and then leaves with ``os._exit``, which
+    skips the interpreter's module teardown and the C++ destructors. Only for the program's own end (the console
+    script, ``python -m``), never for a caller of ``main`` in its own interpreter."""
+    if not _released:
+        return
+    for thread in threading.enumerate():
+        if thread is not threading.main_thread() and not thread.daemon:
+            thread.join()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 def _mappings(smaps: str, name_part: str) -> list[tuple[int, int, str, int, int]]:
