@@ -145,8 +145,14 @@ def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
 
 
 def _numba_jit_off() -> None:
-    """In the start pose's interpreter, before numba's import: njit functions stay plain Python functions."""
+    """In the start pose's interpreter, before numba's import: njit functions stay plain Python functions, and the
+    LLVM pages numba's import maps (~90 MB on a fresh install) are handed back at once, as nothing compiles."""
     os.environ["NUMBA_DISABLE_JIT"] = "1"
+    import numba  # noqa: F401
+
+    from edge_explorer.runtime.kernels import release_llvm_pages
+
+    release_llvm_pages()
 
 
 def _draw_start_pose(plan: str, seed: int) -> tuple[float, float, float]:
