@@ -16,10 +16,12 @@ The batch is fixed at 1 (what the daemon runs, and what full-integer TFLite need
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import subprocess
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +67,13 @@ class ExportNetwork:
     outputs: tuple[str, ...]
     metadata: dict[str, str]  # written into the ONNX metadata_props and the TFLite metadata
 
+    # The function whose *decisions* the gates judge, when the exported graph computes an equivalent one (the goal
+    # policy: the unwrapped net's logits; the export outputs a monotone transform of them). None: ``module``.
+    decision_reference: torch.nn.Module | None = None
+    # A calibration-dependent rewrite into an equivalent network (the goal policy's equalization), applied by the
+    # pipeline once the calibration observations exist. None: export ``module`` as it is.
+    prepare: Callable[[list[Feed]], ExportNetwork] | None = None
+
     def example(self) -> tuple[torch.Tensor, ...]:
         return tuple(torch.zeros(shape) for shape in self.inputs.values())
 
@@ -73,9 +82,154 @@ class ExportNetwork:
         return {name: np.asarray(feed[name], dtype=np.float32) for name in self.inputs}
 
 
+class WindowedScores(torch.nn.Module):
+    """The goal net's score convolution (one logit per cell) followed by a per-decision *window*: its output is a
+    strictly increasing function of the logit within each decision, so every argmax — over the valid cells or any
+    other set — is the logit's own, while an int8 output spends its 256 levels on the logits that can win.
+
+    With ``x`` the logits and ``M`` their maximum over the ``cells`` × ``cells`` goal grid (a per-decision scalar):
+
+    * ``mid  = clamp(k_mid  · (x − M + window),          0, 6)``, ``k_mid  = 6 / (window + margin)``;
+    * ``tail = clamp(k_tail · (x − M + window + tail), 0, 6)``, ``k_tail = 6 / tail``;
+    * ``score = mid + tail_weight · tail``.
+
+    ``score`` rises with slope ``k_mid + tail_weight · k_tail`` over the top ``window`` logits below ``M`` and with
+    ``tail_weight · k_tail`` over the ``tail`` logits below them; it is flat only more than ``window + tail``
+    below the maximum (ties there cannot change a decision unless every valid cell is that far below the best
+    cell of the grid). ``x ≤ M`` always, so the upper clamp never cuts a logit; ``margin`` keeps it so when int8
+    rounds ``M`` below a cell's value.
+
+    ``x − M`` is not computed on the coarse int8 logits: ``M`` (a reduce-max, broadcast back by a nearest resize)
+    joins the score convolution's input features as one more channel, so the subtraction happens in the next
+    1 × 1 convolution's 32-bit accumulator, and the 0…6 clamp is that convolution's fused ReLU6. The coarse
+    logits only place the window (their rounding shifts every cell of a decision alike). Ops: Conv, ReduceMax,
+    Resize (nearest), Concat, Clip(0, 6): all int8, all Edge TPU operations.
+    """
+
+    def __init__(self, score: torch.nn.Conv2d, cells: int, window: float, margin: float, tail: float,
+                 tail_weight: float) -> None:  # fmt: skip
+        super().__init__()
+        if score.out_channels != 1 or score.kernel_size != (1, 1):
+            raise ValueError("the score layer must be a 1 × 1 convolution to one channel")
+        self.score = score
+        self.cells = cells
+        features = score.in_channels
+        k_mid, k_tail = 6.0 / (window + margin), 6.0 / tail
+        w, b = score.weight.detach()[0, :, 0, 0], float(score.bias.detach()[0])
+        self.pieces = torch.nn.Conv2d(features + 1, 2, 1)
+        self.combine = torch.nn.Conv2d(2, 1, 1, bias=False)
+        with torch.no_grad():
+            for k, (gain, offset) in enumerate(((k_mid, window), (k_tail, window + tail))):
+                self.pieces.weight[k, :features, 0, 0] = gain * w
+                self.pieces.weight[k, features, 0, 0] = -gain
+                self.pieces.bias[k] = gain * (b + offset)
+            self.combine.weight[0, :, 0, 0] = torch.tensor([1.0, tail_weight])
+        for p in self.parameters():
+            p.requires_grad_(False)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        logits = self.score(features)
+        best = logits[:, :, : self.cells, : self.cells].amax(dim=(2, 3), keepdim=True)
+        best = torch.nn.functional.interpolate(best, size=features.shape[-2:], mode="nearest")
+        pieces = torch.clamp(self.pieces(torch.cat([features, best], dim=1)), 0.0, 6.0)
+        # The calibrated int8 range of the scores must reach above the best cell's fp32 score (its int8 value lands
+        # within a rounding of it, either side; clipped at the range's top, near-best cells would tie): the column
+        # beyond the goal grid (cropped away by the net) gets ``mid`` = ``tail`` = 6, the highest score there is.
+        ceiling = torch.full_like(pieces[..., :1], 6.0)
+        return self.combine(torch.cat([pieces[..., : self.cells], ceiling], dim=-1))
+
+
+@torch.no_grad()
+def equalize_goal_net(net: torch.nn.Module, feeds: list[Feed], strength: float = 0.5, cap: float = 16.0) -> torch.nn.Module:
+    """A copy of a :class:`~edge_explorer.learn.goal_net.GoalNet` with every ReLU layer's output channels rescaled
+    towards a common range (cross-layer equalization) — the same function, since ``relu(s·x) = s·relu(x)`` for
+    ``s > 0`` and every consumer's input weights are divided by the same ``s``.
+
+    int8 activations have one scale per tensor: a channel whose values span a tenth of the tensor's range gets a
+    tenth of its 256 levels. Channel ``c`` of a tensor whose channel maxima (over ``feeds``) are ``r`` is scaled by
+    ``s_c = min(cap, (max(r) / r_c) ** strength)``; the skip concatenations (one int8 scale for both parts in
+    TFLite) are equalized as one tensor. The motion bias added to ``down4``'s output is scaled with it."""
+    net = copy.deepcopy(net).eval()
+    ranges: dict[str, torch.Tensor] = {}
+    hooks = [getattr(net, name).register_forward_hook(
+                 lambda _m, _i, out, name=name: ranges.__setitem__(
+                     name, torch.maximum(ranges.get(name, torch.zeros(out.shape[1])), out.amax(dim=(0, 2, 3)))))
+             for name in ("down1", "down2", "down3", "down4", "mix", "up1", "up2")]  # fmt: skip
+    for feed in feeds:
+        net(*(torch.from_numpy(np.asarray(feed[n], np.float32)) for n in ("high", "thres", "last_action")))
+    for hook in hooks:
+        hook.remove()
+    # tensors that share one int8 scale: up(mix) ‖ down3 (up1's input), up(up1) ‖ down2 (up2's input)
+    groups = {"down1": None, "down4": None, "up2": None, "mix": "down3", "down3": "mix", "up1": "down2",
+              "down2": "up1"}  # fmt: skip
+    scales = {}
+    for name, r in ranges.items():
+        top = torch.maximum(r.max(), ranges[groups[name]].max()) if groups[name] else r.max()
+        s = torch.where(r > 0, (top / r.clamp_min(1e-12)) ** strength, torch.ones_like(r))
+        scales[name] = s.clamp(max=cap)
+
+    def scale_out(conv: torch.nn.Conv2d, s: torch.Tensor) -> None:
+        conv.weight.mul_(s[:, None, None, None])
+        conv.bias.mul_(s)
+
+    def scale_in(conv: torch.nn.Conv2d, s: torch.Tensor, start: int) -> None:
+        conv.weight[:, start : start + len(s)] /= s[None, :, None, None]
+
+    s = scales
+    scale_out(net.down1[0], s["down1"]); scale_in(net.down2[0], s["down1"], 0)  # noqa: E702
+    scale_out(net.down2[0], s["down2"]); scale_in(net.down3[0], s["down2"], 0)  # noqa: E702
+    scale_in(net.up2[0], s["down2"], net.up1[0].out_channels)
+    scale_out(net.down3[0], s["down3"]); scale_in(net.down4[0], s["down3"], 0)  # noqa: E702
+    scale_in(net.up1[0], s["down3"], net.mix[0].out_channels)
+    scale_out(net.down4[0], s["down4"]); scale_in(net.mix[0], s["down4"], 0)  # noqa: E702
+    net.motion.weight.mul_(s["down4"][:, None]); net.motion.bias.mul_(s["down4"])  # noqa: E702
+    scale_out(net.mix[0], s["mix"]); scale_in(net.up1[0], s["mix"], 0)  # noqa: E702
+    net.value.weight.div_(s["mix"][None, :])  # the critic reads mean(mix): kept exact too (not exported)
+    scale_out(net.up1[0], s["up1"]); scale_in(net.up2[0], s["up1"], 0)  # noqa: E702
+    scale_out(net.up2[0], s["up2"]); scale_in(net.score, s["up2"], 0)  # noqa: E702
+    return net
+
+
+@dataclass(frozen=True)
+class ScoreWindow:
+    """:class:`WindowedScores`' parameters, in logits (``tail_weight``: the tail's share of the output range)."""
+
+    window: float = 8.0
+    margin: float = 0.25
+    tail: float = 32.0
+    tail_weight: float = 0.125
+
+
 class GoalLogits(torch.nn.Module):
-    """A :class:`~edge_explorer.learn.goal_net.GoalNet` with its goal logits [B, 59, 59] as the only output (the
-    value head is training-only; the exporter drops the computation nothing reads)."""
+    """A :class:`~edge_explorer.learn.goal_net.GoalNet` with its goal scores [B, 59, 59] as the only output (the
+    value head is training-only; the exporter drops the computation nothing reads).
+
+    With ``window`` (the default for export) the scores are the net's logits through :class:`WindowedScores`:
+    per decision a strictly increasing function of the logits, so the masked argmax — the goal — is the same;
+    ``window=None`` outputs the raw logits. :meth:`logits` always gives the unwrapped net's logits."""
+
+    def __init__(self, net: torch.nn.Module, window: ScoreWindow | None = ScoreWindow()) -> None:
+        super().__init__()
+        self.net = net
+        self.scored = net
+        if window is not None:
+            # the same layers (shared, not copied) with the score convolution wrapped
+            self.scored = copy.copy(net)
+            self.scored._modules = dict(net._modules)
+            self.scored.score = WindowedScores(net.score, GOAL_GRID_CELLS, window.window, window.margin,
+                                               window.tail, window.tail_weight)  # fmt: skip
+
+    def forward(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        scores, _value = self.scored(high, thres, last_action)
+        return scores
+
+    def logits(self, high: torch.Tensor, thres: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        logits, _value = self.net(high, thres, last_action)
+        return logits
+
+
+class GoalNetLogits(torch.nn.Module):
+    """A goal net's logits [B, 59, 59] only: the function whose masked argmax every exported format must match."""
 
     def __init__(self, net: torch.nn.Module) -> None:
         super().__init__()
@@ -140,21 +294,53 @@ def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None) -
     )
 
 
-def policy_network(net: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
-    """The export view of a :class:`~edge_explorer.learn.goal_net.GoalNet`: float-code inputs, the goal logits
-    only (:class:`GoalLogits`), the goal-grid contract in the metadata."""
+EQUALIZATION_STRENGTH = 0.5  # equalize_goal_net's strength for the export (measured: docs/policy/export_int8.md)
+
+
+def policy_network(
+    net: torch.nn.Module,
+    checkpoint: Path | None = None,
+    window: ScoreWindow | None = ScoreWindow(),
+    equalization: float | None = EQUALIZATION_STRENGTH,
+    reference: torch.nn.Module | None = None,
+) -> ExportNetwork:
+    """The export view of a :class:`~edge_explorer.learn.goal_net.GoalNet`: float-code inputs, the goal scores
+    only (:class:`GoalLogits`; windowed unless ``window`` is None), the goal-grid contract in the metadata. The
+    gates judge the decisions of ``reference`` (default: ``net``'s own logits). With ``equalization`` the
+    network's ``prepare`` equalizes ``net`` on the calibration observations (:func:`equalize_goal_net`)."""
     size = OBSERVATION_WINDOW_CELLS
+    cells = f"[1, {GOAL_GRID_CELLS}, {GOAL_GRID_CELLS}]"
+    if window is None:
+        output = f"goal-cell logits {cells}; goal = masked argmax"
+    else:
+        output = (
+            f"goal-cell scores {cells}: per decision a strictly increasing function of the logits (window "
+            f"{json.dumps(asdict(window))}, edge_explorer.export.networks.WindowedScores); goal = masked argmax"
+        )
     metadata = {
         **base_metadata("policy", checkpoint),
-        "edge_explorer.output": f"goal-cell logits [1, {GOAL_GRID_CELLS}, {GOAL_GRID_CELLS}]; goal = masked argmax",
+        "edge_explorer.output": output,
         "edge_explorer.goal_grid": GOAL_GRID_CONTRACT,
     }
+    reference = reference if reference is not None else GoalNetLogits(net).eval()
+    prepare = None
+    if equalization:
+
+        def prepare(feeds: list[Feed]) -> ExportNetwork:
+            network = policy_network(equalize_goal_net(net, feeds, equalization), checkpoint, window, None, reference)
+            meta = {**network.metadata, "edge_explorer.equalization": json.dumps(
+                {"strength": equalization, "calibration_observations": len(feeds),
+                 "what": "edge_explorer.export.networks.equalize_goal_net (same function, rescaled ReLU channels)"})}  # fmt: skip
+            return ExportNetwork(network.kind, network.module, network.inputs, network.outputs, meta, reference)
+
     return ExportNetwork(
         "policy",
-        GoalLogits(net).eval(),
+        GoalLogits(net, window).eval(),
         {"high": (1, size, size), "thres": (1, size, size), "last_action": (1, NUM_ACTIONS)},
         ("logits",),
         metadata,
+        reference,
+        prepare,
     )
 
 

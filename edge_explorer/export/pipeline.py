@@ -134,9 +134,10 @@ def backend_outputs(backend: InferenceBackend, feeds: Sequence[Feed], like: Sequ
     return outs
 
 
-def torch_outputs(network: ExportNetwork, feeds: Sequence[Feed]) -> list[np.ndarray]:
+def torch_outputs(network: ExportNetwork, feeds: Sequence[Feed], module: torch.nn.Module | None = None) -> list[np.ndarray]:
+    module = network.module if module is None else module
     with torch.no_grad():
-        return [network.module(*(torch.from_numpy(f[n]) for n in network.inputs)).numpy() for f in feeds]
+        return [module(*(torch.from_numpy(f[n]) for n in network.inputs)).numpy() for f in feeds]
 
 
 def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations:
@@ -145,10 +146,12 @@ def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations
     if network.kind == "predictor":
         return predictor_observations(recipe.calibration, next(iter(network.inputs)))
 
+    module = network.decision_reference or network.module
+
     def scores(obs: dict[str, np.ndarray]) -> np.ndarray:
         with torch.no_grad():
             args = (torch.from_numpy(np.asarray(obs[n], dtype=np.float32)[None]) for n in network.inputs)
-            return network.module(*args).numpy()
+            return module(*args).numpy()
 
     predictor = None
     if recipe.calibration.predictor is not None:
@@ -191,6 +194,8 @@ def run_export(
     torch.set_num_threads(1)
     try:
         observations = collect_observations(recipe, network)
+        if network.prepare is not None:
+            network = network.prepare([network.cast(f) for f in observations.calibration])
         out_root.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=out_root, prefix=f".{recipe.name}-export-") as tmp:
             report = _export_in(Path(tmp), recipe, out_root / recipe.name, network, observations, convert_env, log)
@@ -213,11 +218,15 @@ def _export_in(
     name = recipe.name
     held, calibration = ([network.cast(f) for f in feeds] for feeds in (obs.held_back, obs.calibration))
     reference = torch_outputs(network, held)
+    # the decisions every format is judged against: the unwrapped network's, where the export computes an
+    # equivalent function (the goal policy's windowed scores)
+    decisions = reference if network.decision_reference is None else torch_outputs(network, held,
+                                                                                   network.decision_reference)
 
     def recipe_gate(outputs: list[np.ndarray]) -> gate_fns.GateResult:
         if network.kind == "predictor":
             return gate_fns.predictor_gate(reference, outputs, obs.maps, recipe.gates)
-        return gate_fns.goal_gate(reference, outputs, obs.masks, recipe.gates)
+        return gate_fns.goal_gate(decisions, outputs, obs.masks, recipe.gates)
 
     example = [torch.from_numpy(held[0][n]) for n in network.inputs]
     with torch.no_grad():
@@ -243,6 +252,15 @@ def _export_in(
     cost = graph_cost(fp32_path, network)
     rows.append(measure("onnx_fp32", fp32_path, OnnxRuntimeCpuBackend(1), "fp32",
                         lambda outs: gate_fns.parity_gate(reference, outs, FP32_PARITY_TOLERANCE)))  # fmt: skip
+    if network.kind == "policy" and network.decision_reference is not None:
+        # the exported function must choose exactly the unwrapped network's goals (torch fp32, held-back decisions)
+        parity = gate_fns.goal_gate(decisions, reference, obs.masks, {"min_top1_agreement": 1.0})
+        fp32_row = rows[-1]
+        fp32_row.details["decision_parity_vs_unwrapped_net"] = parity.figures["top1_agreement"]
+        log(f"exported function vs the unwrapped net (torch fp32): {parity.summary}")
+        if not parity.passed:
+            fp32_row.gate = gate_fns.GateResult(False, fp32_row.gate.figures, fp32_row.gate.summary,
+                                                (*fp32_row.gate.failures, *parity.failures))  # fmt: skip
 
     if "onnx_int8" in recipe.formats:
         int8_path = tmp / f"{name}_int8.onnx"

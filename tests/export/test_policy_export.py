@@ -31,8 +31,10 @@ G = GOAL_GRID_CELLS
 # nearest Resize, Concat skips, and the channel select + crop of the scores (torch's Gather, rewritten as Slice +
 # Squeeze by onnx_formats.gather_to_slice; Slice). All of them have int8 QDQ kernels or are exact on int8, and
 # onnx2tf maps them onto Edge TPU operations.
+# The exported scores' window (networks.WindowedScores) adds ReduceMax (the per-decision best logit) and Clip(0, 6)
+# (ReLU6, fused into its convolution).
 GOAL_ONNX_OPS = {"Conv", "Relu", "MaxPool", "Pad", "Resize", "Concat", "Add", "Sub", "Mul", "Unsqueeze", "Gemm",
-                 "Slice", "Squeeze"}  # fmt: skip
+                 "Slice", "Squeeze", "ReduceMax", "Clip"}  # fmt: skip
 GOAL_RECIPE = """
 model = "policy"
 checkpoint = "ckpt/policy.safetensors"
@@ -136,13 +138,17 @@ def test_goal_policy_int8_onnx_gate_reports_the_masked_agreement_it_measures(tmp
     card = report.card["export"]
     assert card["calibration"]["held_back_observations"] == figures["observations"]
     assert card["metadata"]["edge_explorer.model"] == "policy" and card["graph"]["macs"] > 0
-    # the same figure, recomputed outside the pipeline from the same decisions and calibration
+    assert fp32.details["decision_parity_vs_unwrapped_net"] == 1.0
+    # the same figure, recomputed outside the pipeline from the same decisions and calibration, against the
+    # unwrapped net's own logits
     network = policy_network(net)
     obs = pipeline.collect_observations(recipe, network)
+    network = network.prepare([network.cast(f) for f in obs.calibration])
     export_fp32(network, tmp_path / "fp32.onnx")
     quantize_int8(tmp_path / "fp32.onnx", tmp_path / "int8.onnx", obs.calibration, recipe.quantization)
     session = ort.InferenceSession(str(tmp_path / "int8.onnx"), providers=["CPUExecutionProvider"])
-    reference = pipeline.torch_outputs(network, obs.held_back)
+    with torch.no_grad():
+        reference = [net(*(torch.from_numpy(f[n]) for n in network.inputs))[0].numpy() for f in obs.held_back]
     same = [
         gates.masked_argmax(session.run(None, feed)[0], m) == gates.masked_argmax(r, m)
         for feed, r, m in zip(obs.held_back, reference, obs.masks, strict=True)
@@ -206,3 +212,74 @@ def test_export_all_skips_a_recipe_whose_checkpoint_is_not_trained_yet(tmp_path,
     monkeypatch.setattr(pipeline, "run_export", fake_run_export)
     assert cli.export_cli(Namespace(all=True, recipe=None, out=tmp_path / "models", json=None)) == 0
     assert ran == ["predictor"] and "policy: skipped" in capsys.readouterr().out
+
+
+# ---- the int8-friendly export transforms (networks.WindowedScores, networks.equalize_goal_net) ----------------------
+def _batch(seeds) -> tuple[torch.Tensor, ...]:
+    feeds = [random_observation(s) for s in seeds]
+    return tuple(torch.from_numpy(np.concatenate([f[n] for f in feeds])) for n in ("high", "thres", "last_action"))
+
+
+def test_windowed_scores_rise_strictly_with_the_logits_so_every_masked_argmax_is_the_nets():
+    net = tiny_goal_net(1)
+    with torch.no_grad():  # spread the logits over ~30 like a trained net's, so the tail and the window both matter
+        net.score.weight.mul_(40.0)
+    network = policy_network(net, equalization=None)
+    rng = np.random.default_rng(0)
+    with torch.no_grad():
+        for seed in range(3):
+            inputs = _batch([seed])
+            logits = network.decision_reference(*inputs)[0].numpy()
+            scores = network.module(*inputs)[0].numpy()
+            assert scores.shape == logits.shape == (G, G)
+            order = np.argsort(logits, axis=None)
+            within = logits.flat[order] > logits.max() - (8.0 + 32.0)  # above the flat end of the tail
+            rise, step = np.diff(scores.flat[order][within]), np.diff(logits.flat[order][within])
+            assert np.all(rise >= -1e-5) and np.all(rise[step > 1e-3] > 0), "scores must rise with the logits"
+            for _ in range(20):
+                mask = rng.random((G, G)) < 0.05
+                mask[rng.integers(G), rng.integers(G)] = True
+                assert gates.masked_argmax(scores, mask) == gates.masked_argmax(logits, mask)
+
+
+def test_the_window_keeps_headroom_above_the_best_cell_for_int8():
+    """The best cell scores below the ceiling column (cropped away) so its int8 value is never clipped."""
+    from edge_explorer.export.networks import ScoreWindow, WindowedScores
+
+    net = tiny_goal_net(2)
+    window = ScoreWindow()
+    head = WindowedScores(net.score, G, window.window, window.margin, window.tail, window.tail_weight)
+    with torch.no_grad():
+        out = head(torch.rand(1, net.score.in_channels, G + 1, G + 1) * 5)
+    assert out.shape == (1, 1, G + 1, G + 1)
+    ceiling = 6.0 * (1.0 + window.tail_weight)
+    np.testing.assert_allclose(out[0, 0, :, G].numpy(), ceiling, rtol=1e-6)
+    assert out[0, 0, :G, :G].max() < ceiling - 0.1
+
+
+def test_equalization_keeps_the_logits_and_evens_the_channel_ranges():
+    from edge_explorer.export.networks import equalize_goal_net
+
+    torch.manual_seed(3)
+    net = GoalNet(GoalNetConfig(encoder=(4, 6, 6, 8), decoder=(6, 4))).eval()
+    with torch.no_grad():  # uneven channels, as training leaves them
+        net.up2[0].weight[:2] *= 20.0
+        net.up2[0].bias[:2] *= 20.0
+    feeds = [random_observation(s) for s in range(4)]
+    before = net.up2[0].weight.detach().clone()
+    equalized = equalize_goal_net(net, feeds, strength=1.0)
+    inputs = _batch(range(4, 7))
+    with torch.no_grad():
+        (a, va), (b, vb) = net(*inputs), equalized(*inputs)
+        np.testing.assert_allclose(b.numpy(), a.numpy(), rtol=1e-4, atol=1e-4 * float(a.abs().max()))
+        np.testing.assert_allclose(vb.numpy(), va.numpy(), rtol=1e-4, atol=1e-4)
+
+        def spread(model: GoalNet) -> float:
+            ranges = []
+            model.up2.register_forward_hook(lambda _m, _i, o: ranges.append(o.amax(dim=(0, 2, 3))))
+            model(*_batch(range(3)))
+            r = ranges[-1][ranges[-1] > 0]
+            return float(r.max() / r.min())
+
+        assert spread(equalized) < spread(net)
+    assert torch.equal(net.up2[0].weight, before)  # the original is untouched (a copy is equalized)
