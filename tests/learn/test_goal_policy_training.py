@@ -95,8 +95,8 @@ def test_resume_equals_an_uninterrupted_run(demo_dirs, tmp_path):
 @pytest.mark.slow
 def test_train_ship_export_and_fly_the_exported_policy_on_the_two_rooms(demo_dirs, rooms, tmp_path, monkeypatch):
     """The whole path of a goal policy, tiny: behaviour cloning → bench with the torch weights → ship (card, with the
-    bench that flew them) → export to ONNX fp32/int8 with its gate → the exported policy flies the benchmark and
-    the daemon's model loader takes it as flight-ready."""
+    bench that flew them) → export to ONNX with its parity check (the int8 gates: tests/export) → the exported
+    policy flies the benchmark and the daemon's model loader takes it as flight-ready."""
     config = BCConfig(
         train_demos=str(demo_dirs / "train"), val_demos=str(demo_dirs / "val"), batch_size=4, total_steps=30
     )
@@ -124,7 +124,7 @@ def test_train_ship_export_and_fly_the_exported_policy_on_the_two_rooms(demo_dir
     recipe_path = tmp_path / "quantize" / "policy.toml"
     recipe_path.write_text(
         'model = "policy"\ncheckpoint = "models/policy/policy.safetensors"\n[calibration]\nplans = 1\n'
-        'held_back_plans = 1\nper_plan = 4\n[formats]\nproduce = ["onnx_fp32", "onnx_int8"]\n[gates]\n'
+        'held_back_plans = 1\nper_plan = 4\n[formats]\nproduce = ["onnx_fp32"]\n[gates]\n'
         "min_top1_agreement = 0.5\n[latency]\nrepeats = 2\n"
     )
     report = pipeline.run_export(load_recipe(recipe_path), models, log=lambda *_: None)
