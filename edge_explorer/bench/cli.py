@@ -78,8 +78,9 @@ def _explore(args: argparse.Namespace) -> int:
     table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)
     table += "\n" + bench.markdown_paired(paired) if len(methods) > 1 else ""
     command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
-    print(table, end="")
     failed = bench.failures(records)
+    table += bench.markdown_failures(failed)
+    print(table, end="")
     print(f"{len(records)} runs, {len(failed)} without 95 % coverage or with a collision")
     if args.markdown is not None:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)

@@ -256,6 +256,7 @@ def run_episode(
         "format": RECORD_FORMAT,
         "spec": asdict(spec),
         "ending": ending,
+        "why": explain_ending(env, ending, coverage[-1], correct[-1], spec),
         "steps": len(path) - 1,
         "collisions": collisions,
         "final_coverage": coverage[-1],
@@ -271,6 +272,32 @@ def run_episode(
             "path_length_m": np.round(path, 4).tolist(),
         },
     }
+
+
+def explain_ending(env: ExplorationEnv, ending: str, coverage: float, correct: float, spec: RunSpec) -> dict[str, Any]:
+    """Why a run ended where it did, in words and figures (issue #18): the goal; the step limit; or a planner
+    stall — the planner found nothing left to explore in the observed map while N_M cells were still unknown, split
+    into those the vehicle could have flown into and those it could only have seen from elsewhere. Space no flight
+    can reach or see is not in N_M at all (``plans check`` reports its area), so it never explains a short run."""
+    unexplored, reachable = env.unexplored()
+    cell_m2 = env.maps.low_grid.resolution_m**2
+    unexplored_m2 = float(unexplored.sum() * cell_m2)
+    reachable_m2 = float(reachable.sum() * cell_m2)
+    figures = {"unexplored_m2": round(unexplored_m2, 2), "unexplored_reachable_m2": round(reachable_m2, 2)}
+    if ending == "goal":
+        return {"reason": "goal", "text": f"coverage {coverage:.1%} and correct coverage {correct:.1%}", **figures}
+    left = f"{unexplored_m2:.1f} m² of N_M unknown ({reachable_m2:.1f} m² of it reachable)"
+    if ending == "step_cap":
+        return {
+            "reason": "step_limit",
+            "text": f"step limit {spec.max_steps} reached at {coverage:.1%}; {left}",
+            **figures,
+        }
+    if coverage >= spec.coverage_goal:  # coverage there, correct coverage short: the prediction filled cells wrongly
+        text = f"nothing left to explore at {coverage:.1%}, but correct coverage {correct:.1%}: predicted cells wrong"
+        return {"reason": "wrong_prediction", "text": text, **figures}
+    text = f"planner stall: no reachable frontier left in the observed map at {coverage:.1%}; {left}"
+    return {"reason": "planner_stall", "text": text, **figures}
 
 
 def _first_crossing(values: Sequence[float], path_m: Sequence[float], goal: float) -> float | None:
@@ -491,6 +518,7 @@ def failures(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             "plan": r["spec"]["plan"],
             "run": r["spec"]["run"],
             "ending": r["ending"],
+            "why": r.get("why", {}).get("text"),
             "final_coverage": r["final_coverage"],
             "collisions": r["collisions"],
             "steps": r["steps"],
@@ -498,6 +526,19 @@ def failures(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         for r in records
         if r["path_at_coverage_m"] is None or r["collisions"] > 0
     ]
+
+
+def markdown_failures(failed: Sequence[dict[str, Any]], limit: int = 30) -> str:
+    """The runs that missed the goal or collided, each with why it ended (the first ``limit``)."""
+    if not failed:
+        return ""
+    lines = ["", f"Runs without 95 % coverage or with a collision ({len(failed)}):", ""]
+    for f in failed[:limit]:
+        crash = f", {f['collisions']} collision(s)" if f["collisions"] else ""
+        lines.append(f"- {f['method']} on {f['plan']} run {f['run']}: {f['why'] or f['ending']}{crash}")
+    if len(failed) > limit:
+        lines.append(f"- … and {len(failed) - limit} more (see the JSON)")
+    return "\n".join(lines) + "\n"
 
 
 def _fmt_stats(s: dict[str, float | None]) -> str:

@@ -32,12 +32,11 @@ import math
 from dataclasses import dataclass
 from itertools import product
 
-import cv2
 import numpy as np
 
 from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable, body_to_map, swept_path_blocked, wrap_angle_rad
+from edge_explorer.world.flight_space import FLIGHT_CLEARANCE, centre_clearance_m
 from edge_explorer.world.grid import FREE, OCCUPIED, GridSpec
-from edge_explorer.world.raster import ROBOT_RADIUS_M
 
 Pose = tuple[float, float, float]  # (x_m, y_m, yaw_rad) in the map frame
 _BAND_EPS_M = 1e-6  # the NON_FLIGHT band holds the cells *within* the robot radius of an obstacle
@@ -52,8 +51,8 @@ class FollowConfig:
     goal_tolerance_m: float = 0.25
     yaw_tolerance_rad: float = math.radians(20.0)
     heading_weight_m_per_rad: float = 0.3  # how much a heading error costs against a distance to the target
-    robot_radius_m: float = ROBOT_RADIUS_M
-    safety_margin_m: float = 0.05  # hard: mean motions keep this beyond the robot radius
+    robot_radius_m: float = FLIGHT_CLEARANCE.robot_radius_m
+    safety_margin_m: float = FLIGHT_CLEARANCE.safety_margin_m  # hard: mean motions keep this beyond the robot radius
     caution_margin_m: float = 0.1  # soft: closer than the robot radius plus this costs escape_weight
     clearance_weight: float = 2.0  # cost per metre that a pose lies closer than comfort_distance_m to an obstacle
     comfort_distance_m: float = 0.5
@@ -93,13 +92,7 @@ class FreeSpace:
     def from_codes(cls, codes: np.ndarray, grid: GridSpec) -> FreeSpace:
         """Distances as :func:`~edge_explorer.mapping.ego.inflate_codes` measures them (centre to centre), so
         ``clearance_m <= radius`` is exactly its NON_FLIGHT band; an all-free map has infinite clearance."""
-        occupied = codes == OCCUPIED
-        if occupied.any():
-            cells = cv2.distanceTransform((~occupied).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-            clearance = cells * np.float32(grid.resolution_m)
-        else:
-            clearance = np.full(codes.shape, np.inf, dtype=np.float32)
-        return cls(grid, codes == FREE, clearance)
+        return cls(grid, codes == FREE, centre_clearance_m(codes == OCCUPIED, grid.resolution_m))
 
     def clearance_at(self, x_m: float, y_m: float) -> float:
         """Clearance of the cell holding (x_m, y_m); 0 off the grid."""

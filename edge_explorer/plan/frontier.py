@@ -9,7 +9,9 @@ Planning graph (:class:`PlanningGraph`): 8-connected cells of a grid ``factor``�
 (default 2: 0.10 m, which keeps at least two cells across the free part of a 0.80 m door; 0.20 m cells can lose
 it, and 0.05 m cells make the search four times larger). A planning cell is traversable only if all its fine cells
 are observed FREE and at least the robot radius plus the follower's margin from every observed OCCUPIED cell —
-UNKNOWN is *not* traversable, so a path never crosses space nobody has seen. An edge costs its length times
+:func:`~edge_explorer.world.flight_space.planning_cells`, the rule the plan loaders use on the ground truth to
+decide what a flight can reach, so N_M and the planners agree. UNKNOWN is *not* traversable, so a path never
+crosses space nobody has seen. An edge costs its length times
 ``1 + clearance_weight · (shortfall of the clearance below clearance_soft_m) / clearance_soft_m``, so paths keep
 away from walls where there is room. Shortest paths come from ``scipy.sparse.csgraph.dijkstra``. The vehicle's
 own cell is always a node, so it can leave a spot that sensor noise made look too tight.
@@ -43,6 +45,7 @@ from scipy.sparse.csgraph import dijkstra
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose, choose_action, remaining_path_m
 from edge_explorer.sim.dynamics import Action, ActionTable, load_action_table
+from edge_explorer.world.flight_space import FLIGHT_CLEARANCE, block_reduce, planning_cells
 from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec, resolution_factor
 
 _NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each undirected 8-neighbour edge once
@@ -95,25 +98,13 @@ def _split(cells: np.ndarray, xy_m: np.ndarray, max_radius_m: float) -> list[np.
 class GraphConfig:
     """Resolution and edge costs of the planning graph."""
 
-    factor: int = 2  # planning cell = factor × factor cells of the 0.05 m map
+    factor: int = FLIGHT_CLEARANCE.planning_factor  # planning cell = factor × factor cells of the 0.05 m map
     clearance_soft_m: float = 0.6  # clearance above which an edge costs only its length
     clearance_weight: float = 2.0
 
     def __post_init__(self) -> None:
         if self.factor < 1 or self.clearance_soft_m <= 0 or self.clearance_weight < 0:
             raise ValueError("factor must be ≥ 1, clearance_soft_m > 0 and clearance_weight ≥ 0")
-
-
-def _block_reduce(fine: np.ndarray, factor: int, combine: np.ufunc, pad_value: float | bool) -> np.ndarray:
-    """``combine`` (np.minimum, np.logical_and) over factor × factor blocks; missing cells take ``pad_value``."""
-    rows, cols = -(-fine.shape[0] // factor), -(-fine.shape[1] // factor)
-    padded = np.full((rows * factor, cols * factor), pad_value, dtype=fine.dtype)
-    padded[: fine.shape[0], : fine.shape[1]] = fine
-    out = padded[::factor, ::factor].copy()
-    for di in range(factor):
-        for dj in range(factor):
-            combine(out, padded[di::factor, dj::factor], out=out)
-    return out
 
 
 @dataclass(frozen=True)
@@ -132,9 +123,8 @@ class Traversable:
         rule applies: if it stands closer to an obstacle than ``safe_distance_m``, cells as close as it is count too,
         so a path out exists; its own cell is always included."""
         grid = free.grid.coarsened(factor)
-        clearance = _block_reduce(free.clearance_m, factor, np.minimum, np.float32(0.0))
-        known_free = _block_reduce(free.known_free, factor, np.logical_and, False)
-        mask = known_free & (clearance >= safe_distance_m)
+        mask, clearance = planning_cells(free.known_free, free.clearance_m, safe_distance_m, factor)
+        known_free = block_reduce(free.known_free, factor, np.logical_and, False)
         row, col = (int(v) for v in grid.cell_of(*pose_xy_m))
         if 0 <= row < grid.shape[0] and 0 <= col < grid.shape[1]:
             here_m = free.clearance_at(*pose_xy_m)

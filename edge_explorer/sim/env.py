@@ -1,7 +1,8 @@
 """The 2-D exploration simulator as a gymnasium environment (DESIGN.md §5–§7, the paper's training setup).
 
 One episode: a floor plan is drawn from the plan set, the vehicle starts at a uniform position of the
-configuration space (interior cells clear of the walls by the robot radius) with a uniform heading, and explores
+reachable flight space (:func:`~edge_explorer.world.flight_space.reachable_cells`: interior cells the planners can
+fly to, clear of the walls by the robot radius plus the safety margin) with a uniform heading, and explores
 with the six discrete actions while the planar sensor fills the two-level observed maps.
 
 Spaces
@@ -39,7 +40,7 @@ Episode end
 
 ``info`` holds ``coverage``, ``correct_coverage``, ``f1``, ``path_length_m``, ``collided``, ``penalised``,
 ``plan``, ``steps``. ``reset(options=…)`` accepts ``plan_index`` and ``start_pose`` (x_m, y_m, yaw_rad) for
-scripted runs and benchmarks; a start pose that is not in the configuration space raises ``ValueError``, a plan
+scripted runs and benchmarks; a start pose outside the reachable flight space raises ``ValueError``, a plan
 without any (no free interior cell clear of the walls) raises :class:`~edge_explorer.errors.PlanError`.
 
 Phase 2: pass ``predictor`` — a callable from the 256×256 north-up low-res ego window (int8 codes, robot at
@@ -68,6 +69,7 @@ from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim import dynamics
 from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable
 from edge_explorer.sim.sensor import SensorConfig, scan
+from edge_explorer.world.flight_space import FlightClearance, reachable_cells
 from edge_explorer.world.grid import (
     CELL_DTYPE,
     FREE,
@@ -77,8 +79,9 @@ from edge_explorer.world.grid import (
     OCCUPIED,
     UNKNOWN,
     GridSpec,
+    resolution_factor,
 )
-from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster
+from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster, block_reduce_max
 
 Predictor = Callable[[np.ndarray], np.ndarray]
 STAGES: tuple[str, ...] = ("dynamics", "sensor", "map_update", "metrics_reward", "observation")
@@ -114,29 +117,32 @@ class _PlanTruth:
     raster: PlanRaster
     occupied: np.ndarray  # bool, 0.05 m: what the sensor sees
     blocked: np.ndarray  # bool, 0.05 m: OCCUPIED ∪ NON_FLIGHT of the inflated truth
-    can_start: np.ndarray  # bool, 0.05 m: the configuration space (free interior cells, not blocked)
-    start_cells: np.ndarray  # flat indices of can_start
+    can_start: np.ndarray  # bool, 0.05 m: the reachable flight space (world.flight_space.reachable_cells)
+    start_cells: np.ndarray  # flat indices of the configuration space (free interior cells, not blocked)
     truth_low: np.ndarray  # int8 codes, 0.20 m
-    interior_low: np.ndarray  # bool, 0.20 m
+    interior_low: np.ndarray  # bool, 0.20 m: N_M
+    reachable_low: np.ndarray  # bool, 0.20 m: cells holding a reachable 0.05 m cell
 
 
 def _plan_truth(raster: PlanRaster, robot_radius_m: float) -> _PlanTruth:
     occupied_codes = np.where(raster.occupied, OCCUPIED, FREE).astype(CELL_DTYPE)
     blocked = ego.inflate_codes(occupied_codes, raster.grid.resolution_m, robot_radius_m) != FREE
-    can_start = raster.interior & ~blocked
-    if not can_start.any():
+    in_cspace = raster.interior & ~blocked
+    if not in_cspace.any():
         raise PlanError(
             f"{raster.name}: no free interior cell at least {robot_radius_m} m from the walls: nowhere to start"
         )
+    can_start = reachable_cells(raster, FlightClearance(robot_radius_m=robot_radius_m)) & in_cspace
     low = raster.coarsened(LOW_RES_M)
     return _PlanTruth(
         raster=raster,
         occupied=np.ascontiguousarray(raster.occupied),
         blocked=blocked,
         can_start=can_start,
-        start_cells=np.flatnonzero(can_start),
+        start_cells=np.flatnonzero(in_cspace),
         truth_low=low.truth_codes(),
         interior_low=low.interior,
+        reachable_low=block_reduce_max(can_start, resolution_factor(HIGH_RES_M, LOW_RES_M), low.grid.shape),
     )
 
 
@@ -201,6 +207,15 @@ class ExplorationEnv(gym.Env):
         self._require_reset()
         return self._thres
 
+    def unexplored(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bool masks on the 0.20 m grid: N_M cells still UNKNOWN in M_thres, and those of them holding a cell the
+        vehicle can reach (the rest it could only see from elsewhere). Used to explain a run that ends short."""
+        self._require_reset()
+        truth = self._truth
+        assert truth is not None
+        unexplored = truth.interior_low & (self._thres == UNKNOWN)
+        return unexplored, unexplored & truth.reachable_low
+
     @property
     def path_xy_m(self) -> np.ndarray:
         """(N, 2) positions visited this episode, start included."""
@@ -231,11 +246,14 @@ class ExplorationEnv(gym.Env):
             row, col = grid.cell_of(x, y)
             if not (grid.contains(row, col) and truth.can_start[row, col]):
                 raise ValueError(
-                    f"start pose ({x:.2f}, {y:.2f}) m of {truth.raster.name} is not in the configuration space "
-                    f"(outside the building, in a wall, or within {self.config.robot_radius_m} m of one)"
+                    f"start pose ({x:.2f}, {y:.2f}) m of {truth.raster.name} is not in its reachable flight space "
+                    "(outside the building, in a wall, too close to one, or cut off behind a passage narrower "
+                    "than the vehicle can fly): pick a pose in the open part of the building"
                 )
         else:
             flat = int(truth.start_cells[self.np_random.integers(len(truth.start_cells))])
+            while not truth.can_start.flat[flat]:  # redraw; a reachable first draw is the pose a plain draw gives
+                flat = int(truth.start_cells[self.np_random.integers(len(truth.start_cells))])
             row, col = divmod(flat, grid.shape[1])
             x0, y0 = grid.origin_xy
             x = x0 + (col + self.np_random.random()) * grid.resolution_m

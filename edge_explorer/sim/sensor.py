@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from edge_explorer.world.flight_space import VIEW_RANGE_M
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 
 RAY_SPACING_CELLS = 0.9  # largest gap between neighbouring rays at full range; < 1 cell so none is skipped
@@ -30,7 +31,7 @@ class SensorConfig:
     """Field of view, range and noise of the planar sensor."""
 
     fov_rad: float = math.radians(87.0)
-    range_m: float = 4.5
+    range_m: float = VIEW_RANGE_M  # N_M counts what this range shows from the flight space
     occupied_noise_prob: float = 0.1  # per 8-neighbour of each detected occupied cell
     range_noise_std_m: float = 0.0  # Gaussian error of each ray's return; 0 = off
 

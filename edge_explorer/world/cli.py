@@ -86,35 +86,50 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace) -> int:
-    from edge_explorer.world.catalog import load_building
+    from edge_explorer.errors import PlanError
+    from edge_explorer.world.catalog import load_buildings_with_space
     from edge_explorer.world.render import save_plan_png
 
-    raster = load_building(args.plan)
-    save_plan_png(raster, args.png)
-    print(f"wrote {args.png}")
+    loaded = load_buildings_with_space(args.plan)
+    if len(loaded) != 1:
+        raise PlanError(f"{args.plan!r} names {len(loaded)} plans; `plans show` draws one (use `plans sheet`)")
+    raster, space = loaded[0]
+    save_plan_png(raster, args.png, dropped=space.dropped)
+    note = " (red: left out of N_M, no flight can reach or see it)" if space.dropped.any() else ""
+    print(f"wrote {args.png}{note}")
     return 0
 
 
 def _check(args: argparse.Namespace) -> int:
     from edge_explorer.cli import write_json
-    from edge_explorer.world.catalog import load_buildings
+    from edge_explorer.world.catalog import load_buildings_with_space
     from edge_explorer.world.grid import LOW_RES_M
 
     rows = []
-    for raster in load_buildings(args.plans):
+    for raster, space in load_buildings_with_space(args.plans):
         low = raster.coarsened(LOW_RES_M)
         w, h = raster.grid.size_xy_m
+        cell_m2 = raster.grid.resolution_m**2
         rows.append(
             {
                 "name": raster.name,
                 "grid_m": [round(w, 2), round(h, 2)],
-                "interior_m2": float(raster.interior.sum() * raster.grid.resolution_m**2),
+                "interior_m2": float(raster.interior.sum() * cell_m2),
+                "reachable_m2": float(space.reachable.sum() * cell_m2),
                 "n_m": int(low.interior.sum()),
+                "dropped_free_m2": round(space.dropped_free_m2, 3),
+                "dropped_wall_m2": round(space.dropped_wall_m2, 3),
             }
         )
+        dropped = ""
+        if space.dropped.any():
+            dropped = (
+                f"  left out of N_M: {space.dropped_free_m2:.1f} m² floor, {space.dropped_wall_m2:.1f} m² wall "
+                "no flight can reach or see"
+            )
         print(
             f"{raster.name}: ok  grid {w:.1f}×{h:.1f} m  interior {rows[-1]['interior_m2']:.1f} m²  "
-            f"N_M {rows[-1]['n_m']}"
+            f"reachable {rows[-1]['reachable_m2']:.1f} m²  N_M {rows[-1]['n_m']}{dropped}"
         )
     write_json(args.json, rows)
     return 0

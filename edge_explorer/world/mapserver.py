@@ -4,10 +4,11 @@ Pixel → state follows map_server's "trinary" mode: p = (255 − v)/255 (or v/2
 occupied if p > occupied_thresh, free if p < free_thresh, unknown otherwise. Unknown pixels are treated as solid
 (they are unmapped structure in a floor plan). The image's first row is the top of the map (largest y).
 
-Interior: everything not reachable from the image border through free space. A real floor plan often contains
-closed rooms (no door drawn) or slivers cut off by the window border; the robot can never reach or see those, so
-they are dropped from the interior (reported in ``LoadedMap.dropped_free_area_m2``) and only the free region
-connected to the largest navigable area is kept. This keeps N_M honest: a coverage goal of 95 % must be reachable.
+Interior: everything not reachable from the image border through free space, then cut to the flight space
+(:func:`~edge_explorer.world.flight_space.restrict_to_flight_space`). A real floor plan often contains closed rooms
+(no door drawn), slivers between two wall lines and thick walls; no flight can see into those, so they are dropped
+from the interior (reported in ``LoadedMap.space``). This keeps N_M honest: a coverage goal of 95 % must be
+reachable.
 """
 
 from __future__ import annotations
@@ -19,26 +20,25 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
-from scipy import ndimage
 
 from edge_explorer.errors import PlanError
-from edge_explorer.world.grid import GridSpec
+from edge_explorer.world.flight_space import FlightSpace, restrict_to_flight_space
+from edge_explorer.world.grid import HIGH_RES_M, GridSpec
 from edge_explorer.world.plan import DEFAULT_CEILING_M
-from edge_explorer.world.raster import (
-    GRID_MARGIN_M,
-    ROBOT_RADIUS_M,
-    PlanRaster,
-    clearance_m,
-    interior_from_occupancy,
-)
+from edge_explorer.world.raster import GRID_MARGIN_M, PlanRaster, interior_from_occupancy
 
 REQUIRED_KEYS = ("image", "resolution", "origin")
 
 
 @dataclass(frozen=True)
 class LoadedMap:
-    raster: PlanRaster
-    dropped_free_area_m2: float  # free space unreachable by the robot, removed from the interior
+    raster: PlanRaster  # at 0.05 m, its interior cut to the flight space (N_M counts what a flight can observe)
+    space: FlightSpace  # what was kept and dropped, and why
+
+    @property
+    def dropped_free_area_m2(self) -> float:
+        """Free floor no flight can reach or see (closed rooms, slivers between wall lines), in m²."""
+        return self.space.dropped_free_m2
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
@@ -63,8 +63,9 @@ def _number(data: dict[str, Any], key: str, default: float, path: Path) -> float
     return float(value)
 
 
-def load_map_server(yaml_path: str | Path, robot_radius_m: float = ROBOT_RADIUS_M) -> LoadedMap:
-    """Load a map_server map as a :class:`PlanRaster` at the map's own resolution.
+def load_map_server(yaml_path: str | Path) -> LoadedMap:
+    """Load a map_server map as a :class:`PlanRaster` at 0.05 m (nearest-neighbour resampled if the map's own
+    resolution differs), its interior cut to the flight space (:mod:`edge_explorer.world.flight_space`).
 
     Raises :class:`PlanError` naming the file for a missing image, a non-positive resolution, a rotated origin,
     bad thresholds, or a map with no navigable interior.
@@ -107,25 +108,18 @@ def load_map_server(yaml_path: str | Path, robot_radius_m: float = ROBOT_RADIUS_
     interior = interior_from_occupancy(solid)
     raster = PlanRaster(name, grid, height, interior, DEFAULT_CEILING_M)
 
-    # Keep the free space the robot can reach or look into: free cells connected to the largest navigable region
-    # (8-connected configuration-space component) and nearer to it than to any other region; drop the rest.
-    cspace = interior & (clearance_m(raster) >= robot_radius_m)
-    labels, count = ndimage.label(cspace, structure=np.ones((3, 3), dtype=bool))
-    if count == 0:
-        raise PlanError(f"{path}: no interior free space where a robot of radius {robot_radius_m} m fits")
-    main_id = int(np.argmax(np.bincount(labels.ravel())[1:])) + 1
-    nearest = ndimage.distance_transform_edt(labels == 0, return_distances=False, return_indices=True)
-    owner = labels[nearest[0], nearest[1]]
-    free_interior = interior & free
-    free_labels, _ = ndimage.label(free_interior, structure=np.ones((3, 3), dtype=bool))
-    touching_main = np.unique(free_labels[labels == main_id])
-    kept_free = np.isin(free_labels, touching_main[touching_main > 0]) & (owner == main_id)
-    # Interior = kept free space plus the solid cells that bound it and anything they enclose (walls count in N_M).
-    near_kept = cv2.dilate(kept_free.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    final_interior = ndimage.binary_fill_holes(kept_free | (solid & near_kept)) & interior
-    dropped = free_interior & ~kept_free
-    final_interior &= ~dropped
-    return LoadedMap(
-        PlanRaster(name, grid, height, final_interior, DEFAULT_CEILING_M),
-        float(dropped.sum() * resolution**2),
-    )
+    if abs(resolution - HIGH_RES_M) > 1e-9:
+        raster = _resample(raster, HIGH_RES_M)
+    kept, space = restrict_to_flight_space(raster)
+    return LoadedMap(kept, space)
+
+
+def _resample(raster: PlanRaster, resolution_m: float) -> PlanRaster:
+    """Nearest-neighbour resampling of a map_server raster to the working resolution."""
+    scale = raster.grid.resolution_m / resolution_m
+    rows, cols = (int(round(n * scale)) for n in raster.grid.shape)
+    size = (cols, rows)
+    height = cv2.resize(raster.height_m, size, interpolation=cv2.INTER_NEAREST)
+    interior = cv2.resize(raster.interior.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
+    grid = GridSpec(raster.grid.origin_xy, resolution_m, (rows, cols))
+    return PlanRaster(raster.name, grid, height, interior, raster.ceiling_height_m)

@@ -15,30 +15,35 @@ _OUTSIDE = (200, 205, 215)
 _FREE = (255, 255, 255)
 _TALL = (25, 25, 30)
 _LOW = (214, 170, 110)
+_DROPPED = (220, 40, 40)  # left out of N_M: no flight can reach or see it
 
 
-def plan_rgb(raster: PlanRaster) -> np.ndarray:
-    """An RGB image of the raster, rows flipped so +y points up as on a map."""
+def plan_rgb(raster: PlanRaster, dropped: np.ndarray | None = None) -> np.ndarray:
+    """An RGB image of the raster, rows flipped so +y points up as on a map; ``dropped`` cells (bool) in red."""
     img = np.empty(raster.grid.shape + (3,), dtype=np.uint8)
     img[:] = _OUTSIDE
     img[raster.interior] = _FREE
     low = (raster.height_m > 0) & (raster.height_m < TALL_HEIGHT_M)
     img[low] = _LOW
     img[raster.height_m >= TALL_HEIGHT_M] = _TALL
+    if dropped is not None:
+        img[dropped] = _DROPPED
     return img[::-1]
 
 
-def _draw(ax, raster: PlanRaster, title: str) -> None:
+def _draw(ax, raster: PlanRaster, title: str, dropped: np.ndarray | None = None) -> None:
     g = raster.grid
     x0, y0 = g.origin_xy
     w, h = g.size_xy_m
-    ax.imshow(plan_rgb(raster), extent=(x0, x0 + w, y0, y0 + h), interpolation="nearest")
+    ax.imshow(plan_rgb(raster, dropped), extent=(x0, x0 + w, y0, y0 + h), interpolation="nearest")
     ax.set_title(title, fontsize=8)
     ax.set_xticks([])
     ax.set_yticks([])
 
 
-def save_plan_png(raster: PlanRaster, path: str | Path, title: str | None = None) -> None:
+def save_plan_png(
+    raster: PlanRaster, path: str | Path, title: str | None = None, dropped: np.ndarray | None = None
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -46,7 +51,7 @@ def save_plan_png(raster: PlanRaster, path: str | Path, title: str | None = None
 
     w, h = raster.grid.size_xy_m
     fig, ax = plt.subplots(figsize=(max(4.0, w / 2.2), max(3.0, h / 2.2) + 0.4), dpi=120)
-    _draw(ax, raster, title or f"{raster.name}  ({w:.1f} m × {h:.1f} m)")
+    _draw(ax, raster, title or f"{raster.name}  ({w:.1f} m × {h:.1f} m)", dropped)
     ax.set_xticks(np.arange(np.ceil(raster.grid.origin_xy[0]), raster.grid.origin_xy[0] + w, 2.0))
     ax.set_xlabel("x [m]")
     fig.tight_layout()

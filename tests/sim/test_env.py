@@ -162,7 +162,7 @@ def test_bad_input(rooms):
     with pytest.raises(gym.error.ResetNeeded):
         ExplorationEnv([rooms]).step(0)
     env = ExplorationEnv([rooms])
-    with pytest.raises(ValueError, match="configuration space"):
+    with pytest.raises(ValueError, match="reachable flight space"):
         env.reset(options={"start_pose": (2.0, 0.5, 0.0)})  # inside the divider wall
     with pytest.raises(ValueError, match="unknown reset option"):
         env.reset(options={"start": 1})
