@@ -49,6 +49,7 @@ def run_summary(
             "predictor": None if models.predictor is None else models.predictor.model.backend.name,
         },
         "ending": report.ending,
+        "why": explain_ending(report, daemon),
         "coverage": report.coverage,
         "correct_coverage": report.correct_coverage,
         "f1": report.f1,
@@ -83,6 +84,30 @@ def run_summary(
     }
 
 
+def explain_ending(report: Any, daemon: Any) -> dict[str, Any] | None:
+    """Why the flight ended where it did (issue #18), like the benchmark's records: the goal, a time limit or a stop
+    with the N_M area still unknown, or the planner finding nothing left while N_M cells were unknown (a planner
+    stall), split into what the vehicle could have flown into and what it could only have seen from elsewhere.
+    None without a plan to measure against. Space no flight can reach or see is not in N_M (``plans check``)."""
+    truth, view = daemon.truth, daemon.view
+    if truth is None or view is None or report.coverage is None:
+        return None
+    known = view.thresholded if view.thresholded is not None else view.low
+    unexplored, reachable = truth.unexplored(known, view.low_grid)
+    cell_m2 = truth.grid.resolution_m**2
+    figures = {
+        "unexplored_m2": round(float(unexplored.sum() * cell_m2), 2),
+        "unexplored_reachable_m2": round(float(reachable.sum() * cell_m2), 2),
+    }
+    left = f"{figures['unexplored_m2']:.1f} m² of N_M unknown ({figures['unexplored_reachable_m2']:.1f} m² reachable)"
+    if report.coverage >= daemon.config.coverage_goal:
+        return {"reason": "goal", "text": f"coverage {report.coverage:.1%}", **figures}
+    if report.ending == "explored":
+        text = f"planner stall: nothing left to explore in the observed map at {report.coverage:.1%}; {left}"
+        return {"reason": "planner_stall", "text": text, **figures}
+    return {"reason": report.ending, "text": f"{report.ending} at {report.coverage:.1%}; {left}", **figures}
+
+
 def write_summary(out: Path, summary: dict[str, Any], daemon: Any, raster: Any) -> None:
     """``summary.json`` and ``summary.png`` in ``out``.
 
@@ -100,7 +125,11 @@ def write_summary(out: Path, summary: dict[str, Any], daemon: Any, raster: Any) 
         if view.thresholded is not None:
             panels.append(("observed ∪ thresholded prediction (0.20 m)", view.thresholded, view.low_grid))
     plan = None if raster is None else (raster.occupied, raster.interior, raster.grid)
-    in_fresh_process(draw_run, out / "summary.png", summary, panels, plan, daemon.home_xy_m)
+    unexplored = None
+    if daemon.truth is not None and view is not None:
+        known = view.thresholded if view.thresholded is not None else view.low
+        unexplored = (daemon.truth.unexplored(known, view.low_grid)[0], daemon.truth.grid)
+    in_fresh_process(draw_run, out / "summary.png", summary, panels, plan, daemon.home_xy_m, unexplored)
 
 
 def in_fresh_process(function: Callable[..., object], *args: Any) -> None:
@@ -122,7 +151,8 @@ def print_summary(s: dict[str, Any]) -> None:
     latency = s["decision_latency_ms"] or {"p50": math.nan, "p95": math.nan}
     at_goal = "–" if s["path_at_goal_m"] is None else f"{s['path_at_goal_m']:.1f} m"
     print(
-        f"run: {s['plan'] or 'no plan'}, {s['planner']} planner, ended by {s['ending']}; coverage {pct(s['coverage'])} "
+        f"run: {s['plan'] or 'no plan'}, {s['planner']} planner, ended by {s['ending']}{_why(s)}; "
+        f"coverage {pct(s['coverage'])} "
         f"(correct {pct(s['correct_coverage'])}), path {s['path_length_m']:.1f} m "
         f"(at {pct(s['coverage_goal'])}: {at_goal}), "
         f"collisions {s['collisions']}, decisions {s['decisions']}, decision latency p50 {latency['p50']:.1f} ms "
@@ -131,6 +161,11 @@ def print_summary(s: dict[str, Any]) -> None:
         + _rss_split(s.get("rss_at_end_mb", {})),
         flush=True,
     )
+
+
+def _why(s: dict[str, Any]) -> str:
+    why = s.get("why")
+    return "" if not why or why["reason"] == "goal" else f" ({why['text']})"
 
 
 def _rss_split(rss_mb: dict[str, float]) -> str:
@@ -145,11 +180,13 @@ def draw_run(
     panels: list[tuple[str, Any, Any]],
     plan: tuple[Any, Any, Any] | None,
     home_xy: tuple[float, float] | None,
+    unexplored: tuple[Any, Any] | None = None,
 ) -> None:
     """The run's picture: observed 0.05 m map and path over the true plan; beside it the thresholded prediction.
 
     ``panels``: (title, cell codes, their GridSpec) per panel, codes None for plan and path only (the run ended
-    before its first decision); ``plan``: the true plan's (occupied, interior, GridSpec), None without a plan.
+    before its first decision); ``plan``: the true plan's (occupied, interior, GridSpec), None without a plan;
+    ``unexplored``: (bool mask, its GridSpec) of the N_M cells still unknown at the end, hatched in orange.
     """
     import matplotlib
 
@@ -178,6 +215,13 @@ def draw_run(
                 extent=(x0, x0 + grid.size_xy_m[0], y0, y0 + grid.size_xy_m[1]),
                 interpolation="nearest",
             )
+        if unexplored is not None and unexplored[0].any():
+            mask, ug = unexplored
+            rgba = np.zeros((*mask.shape, 4))
+            rgba[mask] = (1.0, 0.5, 0.0, 0.8)
+            x0, y0 = ug.origin_xy
+            extent_u = (x0, x0 + ug.size_xy_m[0], y0, y0 + ug.size_xy_m[1])
+            ax.imshow(rgba, origin="lower", extent=extent_u, interpolation="nearest")
         if len(path_xy):
             ax.plot(path_xy[:, 0], path_xy[:, 1], "-", color="tab:red", lw=1.2)
             ax.plot(*path_xy[-1], "o", color="tab:red", ms=5)
@@ -193,7 +237,8 @@ def draw_run(
     fig.suptitle(
         f"{summary['plan'] or 'flight'} · {summary['planner']} · {summary['ending']} · coverage "
         f"{pct(summary['coverage'])} (correct {pct(summary['correct_coverage'])}) · path "
-        f"{summary['path_length_m']:.1f} m · collisions {summary['collisions']}",
+        f"{summary['path_length_m']:.1f} m · collisions {summary['collisions']}"
+        + ("" if not summary.get("why") or summary["why"]["reason"] == "goal" else f"\n{summary['why']['text']}"),
         fontsize=10,
     )
     fig.tight_layout()

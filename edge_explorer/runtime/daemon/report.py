@@ -18,8 +18,9 @@ from edge_explorer.mapping.metrics import MapMetrics, map_metrics
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import align_to_grid
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.world.grid import LOW_RES_M, GridSpec
-from edge_explorer.world.raster import PlanRaster
+from edge_explorer.world.flight_space import reachable_cells
+from edge_explorer.world.grid import LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
+from edge_explorer.world.raster import PlanRaster, block_reduce_max
 
 # Stage names of :class:`StageTimings`. "predictor": its ego window (pad + shift, unshift) and the network; "ego": the
 # policy observation (rotate, crop, inflate); "planner": the Nearest Frontier planner or the way home;
@@ -139,11 +140,19 @@ class CoverageTruth:
         self.grid = low.grid
         self.truth = low.truth_codes()
         self.interior = low.interior
+        factor = resolution_factor(raster.grid.resolution_m, LOW_RES_M)
+        self.reachable = block_reduce_max(reachable_cells(raster), factor, low.grid.shape)
 
     def metrics(self, observed: np.ndarray, grid: GridSpec, thresholded: np.ndarray | None) -> MapMetrics:
         observed = align_to_grid(observed, grid, self.grid)
         thres = None if thresholded is None else align_to_grid(thresholded, grid, self.grid)
         return map_metrics(observed, self.truth, self.interior, thres)
+
+    def unexplored(self, known: np.ndarray, grid: GridSpec) -> tuple[np.ndarray, np.ndarray]:
+        """Bool masks on :attr:`grid`: N_M cells UNKNOWN in ``known`` (M_thres, or the observed low-res map), and
+        those of them holding a cell the vehicle can reach — to explain a flight that ends short."""
+        unexplored = self.interior & (align_to_grid(known, grid, self.grid) == UNKNOWN)
+        return unexplored, unexplored & self.reachable
 
 
 @dataclass
