@@ -52,6 +52,7 @@ _NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each undirected 8-neighbour e
 _FULL_TURN_STEPS = 12  # 12 × 30°
 _ESCAPE_RADIUS_M = 1.0  # around a vehicle that stands too close to an obstacle, cells as close count as traversable
 _MAX_HOVERS = 3  # hovers in a row after which the follower counts as stuck
+_MAX_HOVER_RUN = 6  # hovers in a row over any goals after which the vehicle backs off into open space
 _NEARBY_M = 4.0  # graph cost within which the nearest-frontier search looks first
 _FAR_M = 1.0  # a goal that stalls with more path than this left to fly was not failed by its target …
 _MAX_RETREATS = 2  # … so the vehicle backs off (this many times until a target is seen) and tries again …
@@ -286,6 +287,8 @@ class GoalPlanner:
         self._dropped: np.ndarray | None = None  # bool on the 0.20 m grid
         self._spin_steps_left: int | None = None  # None: not spinning
         self._retreats_left = _MAX_RETREATS
+        self._hover_run = 0  # hovers in a row, whatever the goal
+        self._last_targets: np.ndarray | None = None  # target cells of the latest goal
 
     def reset(self) -> None:
         """Forget the goal and the dropped targets (a new flight)."""
@@ -293,6 +296,8 @@ class GoalPlanner:
         self._dropped = None
         self._spin_steps_left = None
         self._retreats_left = _MAX_RETREATS
+        self._hover_run = 0
+        self._last_targets = None
         self.replans = 0
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
@@ -313,6 +318,18 @@ class GoalPlanner:
         self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
     ) -> int | None:
         view = self.view(maps, pose, fused_low)
+        action = self._act(view, pose, previous_action)
+        self._hover_run = self._hover_run + 1 if action == Action.HOVER else 0
+        return action
+
+    def _act(self, view: View, pose: Pose, previous_action: int) -> int | None:
+        if self._hover_run >= _MAX_HOVER_RUN and self._last_targets is not None:
+            # goal after goal hovers at once (each new goal restarts its own count) where no motion towards it is
+            # safe: hovering there lets the drift reach the wall, so back off into open space first
+            stuck = Goal(np.array([pose[:2]]), pose[2], self._last_targets, 1.0)
+            if self._goal is None or not self._goal.retreat:
+                self._goal = retreat_goal(view, pose, stuck) or self._goal
+            self._hover_run = 0
         for _ in range(3):  # a new goal may fail at once (reached, target unseen): then take the next one
             goal = self._goal
             status = "replan" if goal is None else self.status(goal, view, pose)
@@ -328,6 +345,7 @@ class GoalPlanner:
                 self._goal.inherit_progress(goal)
             goal = self._goal
             assert goal is not None
+            self._last_targets = goal.target_cells
             action = choose_action(
                 self.table, pose, previous_action, goal.path_xy_m, view.free, self.config.follow, goal.yaw_rad
             )
