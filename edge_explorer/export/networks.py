@@ -140,7 +140,9 @@ class WindowedScores(torch.nn.Module):
 
 
 @torch.no_grad()
-def equalize_goal_net(net: torch.nn.Module, feeds: list[Feed], strength: float = 0.5, cap: float = 16.0) -> torch.nn.Module:
+def equalize_goal_net(
+    net: torch.nn.Module, feeds: list[Feed], strength: float = 0.5, cap: float = 16.0
+) -> torch.nn.Module:
     """A copy of a :class:`~edge_explorer.learn.goal_net.GoalNet` with every ReLU layer's output channels rescaled
     towards a common range (cross-layer equalization) — the same function, since ``relu(s·x) = s·relu(x)`` for
     ``s > 0`` and every consumer's input weights are divided by the same ``s``.
@@ -176,17 +178,25 @@ def equalize_goal_net(net: torch.nn.Module, feeds: list[Feed], strength: float =
         conv.weight[:, start : start + len(s)] /= s[None, :, None, None]
 
     s = scales
-    scale_out(net.down1[0], s["down1"]); scale_in(net.down2[0], s["down1"], 0)  # noqa: E702
-    scale_out(net.down2[0], s["down2"]); scale_in(net.down3[0], s["down2"], 0)  # noqa: E702
+    scale_out(net.down1[0], s["down1"])
+    scale_in(net.down2[0], s["down1"], 0)  # noqa: E702
+    scale_out(net.down2[0], s["down2"])
+    scale_in(net.down3[0], s["down2"], 0)  # noqa: E702
     scale_in(net.up2[0], s["down2"], net.up1[0].out_channels)
-    scale_out(net.down3[0], s["down3"]); scale_in(net.down4[0], s["down3"], 0)  # noqa: E702
+    scale_out(net.down3[0], s["down3"])
+    scale_in(net.down4[0], s["down3"], 0)  # noqa: E702
     scale_in(net.up1[0], s["down3"], net.mix[0].out_channels)
-    scale_out(net.down4[0], s["down4"]); scale_in(net.mix[0], s["down4"], 0)  # noqa: E702
-    net.motion.weight.mul_(s["down4"][:, None]); net.motion.bias.mul_(s["down4"])  # noqa: E702
-    scale_out(net.mix[0], s["mix"]); scale_in(net.up1[0], s["mix"], 0)  # noqa: E702
+    scale_out(net.down4[0], s["down4"])
+    scale_in(net.mix[0], s["down4"], 0)  # noqa: E702
+    net.motion.weight.mul_(s["down4"][:, None])
+    net.motion.bias.mul_(s["down4"])  # noqa: E702
+    scale_out(net.mix[0], s["mix"])
+    scale_in(net.up1[0], s["mix"], 0)  # noqa: E702
     net.value.weight.div_(s["mix"][None, :])  # the critic reads mean(mix): kept exact too (not exported)
-    scale_out(net.up1[0], s["up1"]); scale_in(net.up2[0], s["up1"], 0)  # noqa: E702
-    scale_out(net.up2[0], s["up2"]); scale_in(net.score, s["up2"], 0)  # noqa: E702
+    scale_out(net.up1[0], s["up1"])
+    scale_in(net.up2[0], s["up1"], 0)  # noqa: E702
+    scale_out(net.up2[0], s["up2"])
+    scale_in(net.score, s["up2"], 0)  # noqa: E702
     return net
 
 
@@ -328,9 +338,12 @@ def policy_network(
 
         def prepare(feeds: list[Feed]) -> ExportNetwork:
             network = policy_network(equalize_goal_net(net, feeds, equalization), checkpoint, window, None, reference)
-            meta = {**network.metadata, "edge_explorer.equalization": json.dumps(
-                {"strength": equalization, "calibration_observations": len(feeds),
-                 "what": "edge_explorer.export.networks.equalize_goal_net (same function, rescaled ReLU channels)"})}  # fmt: skip
+            record = {
+                "strength": equalization,
+                "calibration_observations": len(feeds),
+                "what": "edge_explorer.export.networks.equalize_goal_net (same function, rescaled ReLU channels)",
+            }
+            meta = {**network.metadata, "edge_explorer.equalization": json.dumps(record)}
             return ExportNetwork(network.kind, network.module, network.inputs, network.outputs, meta, reference)
 
     return ExportNetwork(

@@ -134,7 +134,9 @@ def backend_outputs(backend: InferenceBackend, feeds: Sequence[Feed], like: Sequ
     return outs
 
 
-def torch_outputs(network: ExportNetwork, feeds: Sequence[Feed], module: torch.nn.Module | None = None) -> list[np.ndarray]:
+def torch_outputs(
+    network: ExportNetwork, feeds: Sequence[Feed], module: torch.nn.Module | None = None
+) -> list[np.ndarray]:
     module = network.module if module is None else module
     with torch.no_grad():
         return [module(*(torch.from_numpy(f[n]) for n in network.inputs)).numpy() for f in feeds]
@@ -220,8 +222,9 @@ def _export_in(
     reference = torch_outputs(network, held)
     # the decisions every format is judged against: the unwrapped network's, where the export computes an
     # equivalent function (the goal policy's windowed scores)
-    decisions = reference if network.decision_reference is None else torch_outputs(network, held,
-                                                                                   network.decision_reference)
+    decisions = (
+        reference if network.decision_reference is None else torch_outputs(network, held, network.decision_reference)
+    )
 
     def recipe_gate(outputs: list[np.ndarray]) -> gate_fns.GateResult:
         if network.kind == "predictor":

@@ -131,7 +131,8 @@ def train(
     config: BCConfig, out: Path, resume: bool = False, net: GoalNetConfig | None = None, stop_at_step: int | None = None
 ) -> dict:
     """Train (or continue) a behaviour-cloning run into ``out`` (network ``net``, default widths; with
-    ``config.init``, that file's network and weights to start from); returns the final state. ``stop_at_step`` ends this call early with a checkpoint, as a session that runs out of time does."""
+    ``config.init``, that file's network and weights to start from); returns the final state. ``stop_at_step``
+    ends this call early with a checkpoint, as a session that runs out of time does."""
     net = net if net is not None else GoalNetConfig()
     from tqdm import tqdm
 
