@@ -240,3 +240,33 @@ def test_runs_threshold_with_the_predictor_s_calibrated_thresholds(rooms, tmp_pa
     explore.run_episode(rooms, spec, explore.load_predictor(str(card.parent)))
     explore.run_episode(rooms, spec, occupied_predictor)  # a predictor without a card: the defaults
     assert used == [ThresholdConfig(t_f_max=0.1, t_o=0.9), ThresholdConfig()]
+
+
+class _GivesUp:
+    """A planner that finds nothing to explore from the first step."""
+
+    def __init__(self, table=None):
+        pass
+
+    def reset(self):
+        pass
+
+    def act(self, maps, pose, previous_action, fused_low=None):
+        return None
+
+
+def test_a_short_run_says_why(rooms, monkeypatch):
+    pose = explore.start_pose(rooms, 0)
+    capped = explore.RunSpec("frontier", rooms.name, 0, 1, pose, 0.95, 5, None)
+    record = explore.run_episode(rooms, capped)
+    why = record["why"]
+    assert record["ending"] == "step_cap" and why["reason"] == "step_limit"
+    assert why["text"].startswith("step limit 5 reached") and why["unexplored_m2"] > 5.0
+    assert 0 < why["unexplored_reachable_m2"] < why["unexplored_m2"]
+
+    monkeypatch.setitem(explore.PLANNERS, "frontier", _GivesUp)
+    record = explore.run_episode(rooms, explore.RunSpec("frontier", rooms.name, 0, 1, pose, 0.95, 50, None))
+    assert record["ending"] == "explored" and record["why"]["reason"] == "planner_stall"
+    page = explore.markdown_failures(explore.failures([record]))
+    assert f"frontier on {rooms.name} run 0: planner stall" in page
+    assert explore.markdown_failures([]) == ""
