@@ -52,7 +52,7 @@ _NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each undirected 8-neighbour e
 _FULL_TURN_STEPS = 12  # 12 × 30°
 _ESCAPE_RADIUS_M = 1.0  # around a vehicle that stands too close to an obstacle, cells as close count as traversable
 _MAX_HOVERS = 3  # hovers in a row after which the follower counts as stuck
-_MAX_HOVER_RUN = 6  # hovers in a row over any goals after which the vehicle backs off into open space
+_MAX_HOVER_RUN = 6  # hovers in a row over any goals after which a vehicle next to a wall backs off into the open
 _NEARBY_M = 4.0  # graph cost within which the nearest-frontier search looks first
 _FAR_M = 1.0  # a goal that stalls with more path than this left to fly was not failed by its target …
 _MAX_RETREATS = 2  # … so the vehicle backs off (this many times until a target is seen) and tries again …
@@ -323,9 +323,10 @@ class GoalPlanner:
         return action
 
     def _act(self, view: View, pose: Pose, previous_action: int) -> int | None:
-        if self._hover_run >= _MAX_HOVER_RUN and self._last_targets is not None:
-            # goal after goal hovers at once (each new goal restarts its own count) where no motion towards it is
-            # safe: hovering there lets the drift reach the wall, so back off into open space first
+        near_wall = view.free.clearance_at(*pose[:2]) < self.config.follow.caution_distance_m
+        if self._hover_run >= _MAX_HOVER_RUN and near_wall and self._last_targets is not None:
+            # goal after goal hovers at once (each new goal restarts its own count) next to a wall, where no motion
+            # towards them is safe: hovering there lets the drift reach the wall, so back off into open space first
             stuck = Goal(np.array([pose[:2]]), pose[2], self._last_targets, 1.0)
             if self._goal is None or not self._goal.retreat:
                 self._goal = retreat_goal(view, pose, stuck) or self._goal

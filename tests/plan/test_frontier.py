@@ -129,13 +129,13 @@ def test_arriving_without_seeing_the_target_drops_it_at_once(rooms):
 def test_hovering_goal_after_goal_backs_off_into_the_open(rooms, monkeypatch):
     """Each new goal restarts its own stuck count, so a vehicle where no motion towards any target is safe used to
     hover for dozens of steps while its drift carried it to the wall (a real plan, issue #18). After a run of
-    hovers over any goals the planner backs off into open space instead."""
+    hovers over any goals next to a wall the planner backs off into open space instead."""
     from edge_explorer.plan import frontier
     from edge_explorer.sim.dynamics import Action
 
     planner = NearestFrontier()
     planner._retreats_left = 0  # the back-offs for a follower stuck on its way are used up, as in that flight
-    maps, pose = west_room_seen(rooms), (0.6, 0.6, 0.0)
+    maps, pose = west_room_seen(rooms), (0.6, 0.35, 0.0)  # 0.30 m from the wall: inside the caution distance
     real_choose = frontier.choose_action
     monkeypatch.setattr(frontier, "choose_action", lambda *a, **k: Action.HOVER)
     actions = [planner.act(maps, pose, 0) for _ in range(frontier._MAX_HOVER_RUN)]
@@ -146,3 +146,21 @@ def test_hovering_goal_after_goal_backs_off_into_the_open(rooms, monkeypatch):
     assert goal is not None and goal.retreat
     view = planner.view(maps, pose)
     assert view.free.clearance_at(*goal.path_xy_m[-1]) > view.free.clearance_at(*pose[:2])
+
+
+def test_hovering_in_the_open_keeps_the_goal_loop(rooms, monkeypatch):
+    """Away from walls a run of hovers is harmless (the drift has room): no back-off, which would change the
+    flights of the learned policy, whose goals often make the follower wait."""
+    from edge_explorer.plan import frontier
+    from edge_explorer.sim.dynamics import Action
+
+    planner = NearestFrontier()
+    planner._retreats_left = 0
+    maps, pose = west_room_seen(rooms), (0.6, 0.9, 0.0)
+    real_choose = frontier.choose_action
+    monkeypatch.setattr(frontier, "choose_action", lambda *a, **k: Action.HOVER)
+    for _ in range(frontier._MAX_HOVER_RUN):
+        planner.act(maps, pose, 0)
+    monkeypatch.setattr(frontier, "choose_action", real_choose)
+    planner.act(maps, pose, 0)
+    assert planner._goal is None or not planner._goal.retreat
