@@ -45,8 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     data.add_argument("--plans", type=Path, default=Path("data/plans"), help="plan dataset (default data/plans)")
     data.add_argument("--out", type=Path, required=True, help="output folder (train/ and val/ shards)")
-    data.add_argument("--train-plans", type=positive_int, default=4000, help="train plans to explore (4000)")
-    data.add_argument("--val-plans", type=positive_int, default=300, help="val plans to explore (300)")
+    data.add_argument(
+        "--train-plans", type=_non_negative_int, default=4000, help="train plans to explore (4000; 0 = none)"
+    )
+    data.add_argument("--val-plans", type=_non_negative_int, default=300, help="val plans to explore (300; 0 = none)")
     data.add_argument("--samples-per-plan", type=positive_int, default=10, help="coverage levels per plan (10)")
     data.add_argument("--plans-per-shard", type=positive_int, default=50)
     data.add_argument("--seed", type=int, default=0)
@@ -71,6 +73,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     pred.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint (same config)")
     pred.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     pred.add_argument("--max-steps", type=positive_int, help="stop after N steps of this call (resume later)")
+    pred.add_argument("--max-minutes", type=float, help="stop after this much wall time of this call (resume later)")
+    pred.add_argument(
+        "--loader-workers", type=int, default=0, help="processes that build the batches (same batches; feeds a GPU)"
+    )
     pred.set_defaults(func=_train_predictor)
 
     demos = tsub.add_parser(
@@ -247,16 +253,25 @@ def _goal_ppo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _non_negative_int(text: str) -> int:
+    """argparse type for a count that may be 0."""
+    return 0 if text.strip() == "0" else positive_int(text)
+
+
 def _predictor_data(args: argparse.Namespace) -> int:
+    from edge_explorer.errors import EdgeExplorerError
     from edge_explorer.learn.predictor_data import SampleConfig, generate_predictor_data
 
     config = SampleConfig(
         samples_per_plan=args.samples_per_plan, seed=args.seed, noise_free_fraction=args.noise_free_fraction
     )
+    counts = {split: n for split, n in (("train", args.train_plans), ("val", args.val_plans)) if n > 0}
+    if not counts:
+        raise EdgeExplorerError("--train-plans and --val-plans are both 0: nothing to explore")
     report = generate_predictor_data(
         args.plans,
         args.out,
-        {"train": args.train_plans, "val": args.val_plans},
+        counts,
         config,
         args.plans_per_shard,
         args.workers,
@@ -270,9 +285,21 @@ def _predictor_data(args: argparse.Namespace) -> int:
 
 
 def _train_predictor(args: argparse.Namespace) -> int:
+    from edge_explorer.errors import EdgeExplorerError
     from edge_explorer.learn.train_predictor import load_config, train
 
-    state = train(load_config(args.config), args.out, args.resume, args.device, args.config, args.max_steps)
+    if args.loader_workers < 0 or (args.max_minutes is not None and args.max_minutes <= 0):
+        raise EdgeExplorerError("--loader-workers must be ≥ 0 and --max-minutes > 0")
+    state = train(
+        load_config(args.config),
+        args.out,
+        args.resume,
+        args.device,
+        args.config,
+        args.max_steps,
+        loader_workers=args.loader_workers,
+        max_minutes=args.max_minutes,
+    )
     if os.environ.get("RANK", "0") != "0":
         return 0  # under torchrun, rank 0 reports
     print(

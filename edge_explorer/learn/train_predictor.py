@@ -144,12 +144,68 @@ def weighted_bce(logits: torch.Tensor, target: torch.Tensor, weight: torch.Tenso
     return numerator / weight_sum.clamp_min(1e-6)
 
 
+def stacked(dataset: PredictorDataset, indices: list[int]) -> tuple[torch.Tensor, ...]:
+    """(input, target, weight) of ``indices``, stacked on the CPU."""
+    return tuple(torch.stack(column) for column in zip(*(dataset[i] for i in indices), strict=True))
+
+
+def to_device(tensors: tuple[torch.Tensor, ...], device: str) -> tuple[torch.Tensor, ...]:
+    """The tensors on ``device``, channels-last (faster convolutions on CPU and GPU)."""
+    non_blocking = device == "cuda"
+    return tuple(t.to(device, non_blocking=non_blocking).contiguous(memory_format=torch.channels_last) for t in tensors)
+
+
 def batch(dataset: PredictorDataset, indices: list[int], device: str) -> tuple[torch.Tensor, ...]:
-    """(input, target, weight) of ``indices``, stacked channels-last (faster convolutions on CPU and GPU)."""
-    items = [dataset[i] for i in indices]
-    return tuple(
-        torch.stack(column).to(device).contiguous(memory_format=torch.channels_last)
-        for column in zip(*items, strict=True)
+    """(input, target, weight) of ``indices`` on ``device``."""
+    return to_device(stacked(dataset, indices), device)
+
+
+def step_indices(config: PredictorTrainConfig, step: int, steps_per_epoch: int, set_size: int) -> tuple[int, list[int]]:
+    """(epoch, sample indices) of training step ``step``: position ``step`` of the permutation of its epoch."""
+    epoch, position = divmod(step, steps_per_epoch)
+    order = torch.randperm(set_size, generator=torch.Generator().manual_seed(config.seed * 100_003 + epoch))
+    return epoch, order[position * config.batch_size : (position + 1) * config.batch_size].tolist()
+
+
+class StepBatches(torch.utils.data.Dataset):
+    """Item ``k`` is the CPU batch of training step ``first_step + k`` — a pure function of the step, so batches
+    built in DataLoader worker processes (``--loader-workers``, to keep a GPU fed) are the very batches the
+    in-process loop builds, and a resumed run continues with them."""
+
+    def __init__(
+        self, dataset: PredictorDataset, config: PredictorTrainConfig, ranks: ddp.Ranks, first_step: int, stop_step: int
+    ) -> None:
+        self.dataset, self.config, self.ranks = dataset, config, ranks
+        self.first_step, self.stop_step = first_step, stop_step
+        self.steps_per_epoch = len(dataset) // config.batch_size
+
+    def __len__(self) -> int:
+        return self.stop_step - self.first_step
+
+    def __getitem__(self, k: int) -> tuple[int, int, tuple[torch.Tensor, ...]]:
+        step = self.first_step + k
+        epoch, indices = step_indices(self.config, step, self.steps_per_epoch, len(self.dataset))
+        self.dataset.set_epoch(epoch)
+        return epoch, len(indices), stacked(self.dataset, self.ranks.shard(indices))
+
+
+def step_batches(
+    dataset: PredictorDataset, config: PredictorTrainConfig, ranks: ddp.Ranks, steps: range, workers: int, device: str
+):
+    """Iterate (epoch, global batch size, CPU tensors) for ``steps``, in-process or from ``workers`` processes."""
+    source = StepBatches(dataset, config, ranks, steps.start, steps.stop)
+    if workers == 0:
+        return (source[k] for k in range(len(source)))
+    return iter(
+        torch.utils.data.DataLoader(
+            source,
+            batch_size=None,  # items are whole batches
+            shuffle=False,
+            num_workers=workers,
+            pin_memory=device == "cuda",
+            prefetch_factor=4,
+            persistent_workers=False,
+        )
     )
 
 
@@ -255,11 +311,16 @@ def train(
     device: str = "cpu",
     config_path: str | Path | None = None,
     max_steps: int | None = None,
+    loader_workers: int = 0,
+    max_minutes: float | None = None,
 ) -> TrainState:
     """Train (or, with ``resume``, continue training) the predictor into ``out``; returns the final state.
 
-    ``max_steps`` stops after that many steps of this call (checkpointed), for time-boxed sessions. Under
-    torchrun every rank calls this; only rank 0 validates and writes into ``out``.
+    ``max_steps`` stops after that many steps of this call and ``max_minutes`` after that much wall time of it
+    (both checkpointed), for time-boxed sessions. ``loader_workers`` processes build the batches (the same
+    batches; what keeps a GPU busy). On CUDA the forward pass runs in bfloat16 autocast (mixed precision; the
+    weights, optimizer and loss stay float32). Under torchrun every rank calls this; only rank 0 validates and
+    writes into ``out``.
     """
     from tqdm import tqdm
 
@@ -310,28 +371,28 @@ def train(
 
     bar = tqdm(total=stop_step, initial=state.step, unit="step", desc="train predictor", disable=not ranks.is_main)
     running_loss, running_n = 0.0, 0
-    t_last = time.perf_counter()
-    while state.step < stop_step:
-        # the batch: position `step` of the permutation of epoch `step // steps_per_epoch`
-        epoch, position = divmod(state.step, steps_per_epoch)
-        train_set.set_epoch(epoch)
-        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed * 100_003 + epoch))
-        indices = order[position * config.batch_size : (position + 1) * config.batch_size].tolist()
-        x, target, weight = batch(train_set, ranks.shard(indices), device)
-
+    t_start = t_last = time.perf_counter()
+    deadline = math.inf if max_minutes is None else t_start + 60.0 * max_minutes
+    autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=device == "cuda")
+    batches = step_batches(train_set, config, ranks, range(state.step, stop_step), loader_workers, device)
+    for epoch, batch_size, tensors in batches:
+        x, target, weight = to_device(tensors, device)
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, state.step)
+        with autocast:
+            logits = net(x)
+        logits = logits.float()
         if ranks.distributed:
-            loss, loss_value = ddp.global_weighted_mean(*weighted_bce_terms(net(x), target, weight), ranks)
+            loss, loss_value = ddp.global_weighted_mean(*weighted_bce_terms(logits, target, weight), ranks)
         else:
-            loss = weighted_bce(net(x), target, weight)
+            loss = weighted_bce(logits, target, weight)
             loss_value = loss.item()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
 
         state.step += 1
-        state.samples += len(indices)
+        state.samples += batch_size
         now = time.perf_counter()
         state.wall_s += now - t_last
         t_last = now
@@ -367,8 +428,12 @@ def train(
                 state.best_score, state.best_step = selection_score(val), state.step
                 _replace_atomically(lambda p: save_unet(model.fused(), p), out / "best.safetensors")
             t_last = time.perf_counter()  # validation time is not training time
-        if state.step % config.checkpoint_every_steps == 0 or state.step == stop_step:
+        out_of_time = time.perf_counter() > deadline
+        if state.step % config.checkpoint_every_steps == 0 or state.step == stop_step or out_of_time:
             save_checkpoint(out, model, optimizer, state)
+        if out_of_time:
+            break
+    del batches  # stops the loader's workers when the wall-time box ended the loop early
     bar.close()
     ddp.finish(ranks)
     return state

@@ -71,6 +71,22 @@ def test_two_steps_in_one_go_equal_one_step_and_a_resume(shard_dir, tmp_path):
     assert (split / "train_log.csv").read_text().count("\n") == 3  # header + 2 steps
 
 
+def test_loader_workers_build_the_same_batches_as_the_loop(shard_dir, tmp_path):
+    config = _config(shard_dir, total_steps=3)
+    train(config, tmp_path / "inline")
+    train(config, tmp_path / "workers", loader_workers=2)
+    a = load_file(str(tmp_path / "inline" / "checkpoint.safetensors"))
+    b = load_file(str(tmp_path / "workers" / "checkpoint.safetensors"))
+    assert all(bool((a[k] == b[k]).all()) for k in a)
+
+
+def test_a_wall_time_box_stops_with_a_checkpoint_that_resumes(shard_dir, tmp_path):
+    config = _config(shard_dir, total_steps=3, checkpoint_every_steps=100)
+    boxed = train(config, tmp_path, max_minutes=1e-9)  # out of time after the first step
+    assert boxed.step == 1 and json.loads((tmp_path / "state.json").read_text())["step"] == 1
+    assert train(config, tmp_path, resume=True).step == 3
+
+
 def test_resume_refuses_another_config(shard_dir, tmp_path):
     train(_config(shard_dir), tmp_path, max_steps=1)
     with pytest.raises(EdgeExplorerError, match="another config"):

@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# The map predictor's GPU stretch (issue #17), for a lent machine (`device`: one GPU, 16 cores), in one wall-time box:
+#   1. the cores record predictor samples (`train predictor-data`, resumable shards) for DATA_S seconds,
+#   2. a short probe measures training steps/s on this GPU with DataLoader workers and bfloat16 autocast,
+#   3. the U-Net trains for the rest of the box with total_steps set from that rate (the cosine schedule ends in it),
+#   4. the run folder, the recorded train shards and the log are packed into $OUT (at most 16 MiB a file).
+# Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
+# --val-plans 300 --noise-free-fraction 0.3`, the same samples the machine would make); it makes data/plans itself.
+# Wheels the machine lacks (OR-Tools for the FUEL-style explorer) travel in .whl/.
+set -uo pipefail
+BOX_S=${BOX_S:-540}
+DATA_S=${DATA_S:-240}
+DEVICE=${DEVICE:-cuda}
+PROBE_STEPS=${PROBE_STEPS:-150}
+LOADERS=${LOADERS:-12}
+CONFIG=${CONFIG:-edge_explorer/learn/configs/predictor_gpu.toml}  # its total_steps / val_every_steps lines are rewritten
+RUN=${RUN:-runs/predictor_gpu}
+OUT=${OUT:-runs/gpu_out}
+T0=$(date +%s)
+left() { echo $((BOX_S - ($(date +%s) - T0))); }
+mkdir -p "$OUT"
+exec > >(tee "$OUT/log.txt") 2>&1
+if [ -d .whl ]; then
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl
+    export PYTHONPATH=/tmp/site:$PWD
+else
+    export PYTHONPATH=$PWD
+fi
+export PYTHONUNBUFFERED=1
+EE="python3 -m edge_explorer.cli"
+nvidia-smi -L || true; nproc; python3 -c "import torch, numpy, numba; print(torch.__version__, numpy.__version__, numba.__version__)"
+
+echo "== 0. plans $(date -u +%T)"  # deterministic: the same 50,000 plans as on the host, in seconds on 16 cores
+[ -f data/plans/manifest.json ] || $EE plans generate --count 50000 --seed 0 --out data/plans --workers "$(nproc)"
+echo "== 1. samples ($DATA_S s, $(nproc) workers) $(date -u +%T)"
+# its own process group, so the box ends the pool's workers too (finished shards have their marker; the rest is
+# ignored by the loader and redone by a resume)
+setsid $EE train predictor-data --out data/predictor3 --train-plans 45000 --val-plans 300 \
+    --workers "$(nproc)" --noise-free-fraction 0.3 &
+DATA_PID=$!
+for _ in $(seq "$DATA_S"); do kill -0 "$DATA_PID" 2>/dev/null || break; sleep 1; done
+kill -TERM -- -"$DATA_PID" 2>/dev/null; wait "$DATA_PID" 2>/dev/null
+echo "finished train shards: $(ls data/predictor3/train/*.json | wc -l)"
+
+echo "== 2. probe $(date -u +%T)"
+python3 - "$CONFIG" <<'PY'
+import pathlib, sys
+src = pathlib.Path(sys.argv[1]).read_text()
+probe = src.replace("total_steps = 6000", "total_steps = 100000").replace("val_every_steps = 1000", "val_every_steps = 100000")
+pathlib.Path("/tmp/probe.toml").write_text(probe)
+PY
+rm -rf runs/probe
+$EE train predictor --config /tmp/probe.toml --out runs/probe --device "$DEVICE" --loader-workers "$LOADERS" --max-steps "$PROBE_STEPS"
+RATE=$(python3 -c "
+import json; s = json.load(open('runs/probe/state.json')); print(s['step'] / s['wall_s'])")  # loader start-up included
+echo "steps/s: $RATE"
+
+echo "== 3. train $(date -u +%T), $(left) s left"
+python3 - "$RATE" "$(left)" "$CONFIG" <<'PY'
+import pathlib, sys
+rate, left_s, config = float(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
+budget_s = left_s - 75  # start-up, 8 validations, checkpoints, packing
+total = max(500, int(rate * budget_s * 0.9) // 100 * 100)
+src = pathlib.Path(config).read_text()
+cfg = src.replace("total_steps = 6000", f"total_steps = {total}").replace(
+    "val_every_steps = 1000", f"val_every_steps = {max(100, total // 8)}")
+pathlib.Path("/tmp/gpu.toml").write_text(cfg)
+print(f"total_steps {total} for {budget_s:.0f} s at {rate:.1f} steps/s")
+PY
+rm -rf "$RUN"
+$EE train predictor --config /tmp/gpu.toml --out "$RUN" --device "$DEVICE" --loader-workers "$LOADERS" \
+    --max-minutes "$(python3 -c "print(max(0.2, ($(left) - 40) / 60))")"
+
+echo "== 4. pack $(date -u +%T)"
+nvidia-smi --query-gpu=name,memory.used --format=csv || true
+tar czf "$OUT/run.tar.gz" "$RUN" runs/probe/state.json
+tar cf - data/predictor3/train data/predictor3/manifest.json | split -b 15M - "$OUT/train_shards.tar."
+ls -la "$OUT"
