@@ -50,6 +50,28 @@ def torch_latency_ms(model: UNet, repeats: int = 30, threads: int = 1) -> dict:
     }
 
 
+def training_stretches(run_dir: Path) -> list[dict]:
+    """Every stretch of training behind ``run_dir``'s weights, oldest first: a fine-tuning run's ``init_weights``
+    leads back to the run it started from, and each run's state.json lists where its own stretches ran."""
+    stretches: list[dict] = []
+    seen: set[Path] = set()
+    while run_dir is not None and run_dir.resolve() not in seen and (run_dir / "state.json").exists():
+        seen.add(run_dir.resolve())
+        state = json.loads((run_dir / "state.json").read_text())
+        config = json.loads((run_dir / "config.json").read_text())
+        own = state.get("stretches") or [
+            {"from_step": 0, "to_step": state["step"], "wall_s": round(state["wall_s"], 1), "hardware": "not recorded"}
+        ]
+        batch = config["batch_size"]
+        for stretch in reversed(own):
+            samples = (stretch["to_step"] - stretch["from_step"]) * batch
+            entry = {"run": str(run_dir), "train_data": config["train_data"], "samples": samples, **stretch}
+            stretches.insert(0, entry)
+        init = config.get("init_weights") or ""
+        run_dir = Path(init).parent if init else None
+    return stretches
+
+
 def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], command: str) -> dict:
     """Copy ``run_dir/best.safetensors`` to ``out_dir`` and write ``card.json``; returns the card.
 
@@ -69,6 +91,7 @@ def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], c
             raise EdgeExplorerError(f"{path} evaluated another model (sha256 differs from {best})")
         metrics[name] = {key: report[key] for key in ("plans", "n_plans", "explorer", "seed", "thresholds", "levels")}
 
+    stretches = training_stretches(run_dir)
     model = load_unet(best)
     macs, params = count_macs_params(model)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -108,8 +131,10 @@ def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], c
             "best_val_score": state["best_score"],
             "selection": "best mean val F1 over the 50-80 %, 80-95 % and >= 95 % coverage bins",
             "wall_time_h": state["wall_s"] / 3600,
-            "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} shared cores, CPU only, "
-            f"{config['threads']} torch thread(s)",
+            "stretches": stretches,
+            "samples_seen_all_stretches": sum(x["samples"] for x in stretches),
+            "wall_time_h_all_stretches": sum(x["wall_s"] for x in stretches) / 3600,
+            "hardware": sorted({x["hardware"] for x in stretches}),
         },
         "metrics": metrics,
         "latency_torch_fp32_this_host": torch_latency_ms(model),

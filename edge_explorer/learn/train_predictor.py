@@ -266,6 +266,17 @@ class TrainState:
     best_score: float = -1.0  # selection_score of best.safetensors
     best_step: int = -1
     last_val: dict | None = None
+    stretches: list[dict] = dataclasses.field(default_factory=list)  # one per train() call: steps, wall, hardware
+
+
+def hardware_description(device: str, loader_workers: int, threads: int) -> str:
+    """Where a stretch of training ran, in words, for the model card's provenance."""
+    import platform
+
+    cpu = f"{platform.machine()}, {os.cpu_count()} cores"
+    if device == "cuda":
+        return f"{torch.cuda.get_device_name()} (bfloat16 autocast), {cpu}, {loader_workers} loader workers"
+    return f"{cpu}, CPU only, {threads} torch thread(s), {loader_workers} loader workers"
 
 
 def _replace_atomically(write, path: Path) -> None:
@@ -372,6 +383,7 @@ def train(
     bar = tqdm(total=stop_step, initial=state.step, unit="step", desc="train predictor", disable=not ranks.is_main)
     running_loss, running_n = 0.0, 0
     t_start = t_last = time.perf_counter()
+    first_step, first_wall_s = state.step, state.wall_s
     deadline = math.inf if max_minutes is None else t_start + 60.0 * max_minutes
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=device == "cuda")
     batches = step_batches(train_set, config, ranks, range(state.step, stop_step), loader_workers, device)
@@ -435,5 +447,16 @@ def train(
             break
     del batches  # stops the loader's workers when the wall-time box ended the loop early
     bar.close()
+    if ranks.is_main and state.step > first_step:
+        state.stretches.append(
+            {
+                "from_step": first_step,
+                "to_step": state.step,
+                "wall_s": round(state.wall_s - first_wall_s, 1),
+                "hardware": hardware_description(device, loader_workers, config.threads),
+                "processes": ranks.world_size,
+            }
+        )
+        save_checkpoint(out, model, optimizer, state)
     ddp.finish(ranks)
     return state

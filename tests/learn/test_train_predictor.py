@@ -133,3 +133,20 @@ def test_fine_tuning_starts_from_init_weights(shard_dir, tmp_path):
     kernels = [k for k in a if a[k].ndim == 4]  # convolution weights (BatchNorm statistics move in any step)
     assert all(float((a[k] - b[k]).abs().max()) < 1e-6 for k in kernels)
     assert any(float((a[k] - c[k]).abs().max()) > 1e-3 for k in kernels)
+
+
+def test_the_card_lists_every_stretch_back_through_init_weights(shard_dir, tmp_path):
+    from edge_explorer.learn.predictor_card import training_stretches
+
+    first = tmp_path / "first"
+    train(_config(shard_dir), first, max_steps=1)
+    train(_config(shard_dir), first, resume=True)  # two stretches of one run
+    tuned = tmp_path / "tuned"
+    train(_config(shard_dir, init_weights=str(first / "checkpoint.safetensors"), total_steps=1), tuned)
+    stretches = training_stretches(tuned)
+    assert [(s["run"], s["from_step"], s["to_step"]) for s in stretches] == [
+        (str(first), 0, 1),
+        (str(first), 1, 2),
+        (str(tuned), 0, 1),
+    ]
+    assert all("CPU only" in s["hardware"] and s["samples"] == 2 for s in stretches)
