@@ -30,6 +30,17 @@ def _probability(text: str) -> float:
     return value
 
 
+def _threshold_pair(text: str) -> tuple[float, float]:
+    """argparse type for ``T_F_MAX,T_O``: two probabilities with t_f_max ≤ t_o."""
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected T_F_MAX,T_O (e.g. 0.04,0.94), got {text!r}")
+    t_f_max, t_o = (_probability(part) for part in parts)
+    if t_f_max > t_o:
+        raise argparse.ArgumentTypeError(f"need t_f_max ≤ t_o, got {text!r}")
+    return t_f_max, t_o
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     train = sub.add_parser(
         "train",
@@ -205,6 +216,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="P",
         help="sensor noise: probability that each neighbour of a detected wall is labelled occupied (default 0.1, "
         "as in training; 0 shows what the noise costs)",
+    )
+    evp.add_argument(
+        "--thresholds",
+        type=_threshold_pair,
+        metavar="T_F_MAX,T_O",
+        help="score with these thresholds instead of the model's own (its card's calibrated pair, else the "
+        "defaults 0.04,0.94): compare models or thresholds like for like",
     )
     add_ray_argument(evp)
     evp.set_defaults(func=_eval_predictor)

@@ -280,6 +280,8 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=args.occupied_noise)
     reference = str(args.model) if args.ray else predictor  # Ray workers load their own
     thresholds = thresholds_of(predictor)  # an exported model's card may carry calibrated ones (DESIGN.md §5)
+    if args.thresholds is not None:
+        thresholds = dataclasses.replace(thresholds, t_f_max=args.thresholds[0], t_o=args.thresholds[1])
     report = evaluate(
         args.plans, reference, args.explorer, args.seed, args.limit, thresholds, sensor=sensor, ray=args.ray
     )

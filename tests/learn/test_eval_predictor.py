@@ -67,6 +67,20 @@ def test_cli_writes_json_and_plot(tmp_path, capsys):
     assert "F1" in capsys.readouterr().out
 
 
+def test_cli_scores_with_the_thresholds_it_is_given(tmp_path, capsys):
+    plan = tmp_path / "rooms.json"
+    save_plan_json(two_room_plan(), plan)
+    model = tmp_path / "tiny.safetensors"
+    save_unet(UNet(UNetConfig(channels=(4, 8, 8, 8, 8), head_channels=2)).eval().fused(), model)
+    out = tmp_path / "eval.json"
+    args = ["eval", "predictor", "--model", str(model), "--plans", str(plan), "--json", str(out)]
+    assert main([*args, "--thresholds", "0.1,0.8"]) == 0
+    assert json.loads(out.read_text())["thresholds"] == {"t_f_max": 0.1, "t_o": 0.8}
+    with pytest.raises(SystemExit) as exit_info:
+        main([*args, "--thresholds", "0.9,0.8"])
+    assert exit_info.value.code == 2 and "t_f_max ≤ t_o" in capsys.readouterr().err
+
+
 def test_cli_rejects_a_missing_model(tmp_path, capsys):
     assert (
         main(
