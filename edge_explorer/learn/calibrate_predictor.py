@@ -68,15 +68,16 @@ def collect_samples(
     seed: int = 0,
     levels: Sequence[float] = DEFAULT_LEVELS,
     sensor: SensorConfig = DEFAULT_SENSOR,
+    split: str = "val",
 ) -> tuple[list[str], list[CalibrationSample]]:
-    """The first ``n_plans`` plans of the regenerated val split (plan ``k`` flies with the seed sequence (seed, k), as
-    in the evaluation) and their samples."""
+    """The first ``n_plans`` plans of the regenerated ``split`` (plan ``k`` flies with the seed sequence (seed, k), as
+    in the evaluation) and their samples. Thresholds are chosen on val; other splits are for held-out checks."""
     from tqdm import tqdm
 
     from edge_explorer.world.catalog import plan_to_raster
     from edge_explorer.world.dataset import regenerate_split
 
-    plans = regenerate_split("val", n_plans)
+    plans = regenerate_split(split, n_plans)
     samples: list[CalibrationSample] = []
     for k, plan in enumerate(tqdm(plans, desc="calibrate predictor", unit="plan")):
         scene = Scene.from_raster(plan_to_raster(plan))
