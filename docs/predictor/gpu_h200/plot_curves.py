@@ -29,7 +29,10 @@ def wall_at(train_log: list[dict], step: int) -> float:
 
 def main() -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    stretches = (("", "stretch 1 (shipped)"), ("ft_", "stretch 2: fine-tune of 1 (int8 gate failed)"))
+    stretches = (
+        ("", "stretch 1 (candidate, docs/predictor/gpu_h200)"),
+        ("ft_", "stretch 2: fine-tune of 1 (int8 gate failed)"),
+    )
     offset_samples, offset_wall = 0, 0.0
     for prefix, label in stretches:
         val, train = rows(f"{prefix}val_log.csv"), rows(f"{prefix}train_log.csv")
