@@ -26,6 +26,7 @@ import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,16 +34,32 @@ from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import project
 from edge_explorer.plan.follow import FreeSpace
 from edge_explorer.plan.frontier import frontier_mask
+from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import WaypointPlanner
 from edge_explorer.predict.thresholding import thresholded_map
-from edge_explorer.runtime.daemon.report import DecisionView
+from edge_explorer.runtime.daemon.report import DecisionView, StageTimings
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
 from edge_explorer.sim.dynamics import Action
 from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec
 
 log = logging.getLogger(__name__)
 
+
+
+@dataclass(frozen=True)
+class TimedScores:
+    """The goal policy's scores for one decision of the goal planner, timed as stage "policy" (inside the stage
+    "planner" that asks for them). A plain object rather than a bound method of the daemon: the planner holding it
+    then holds no reference back to the daemon, a cycle that kept each finished flight's maps and planners (+31 MB
+    a flight) alive until the cyclic collector's next full pass when flights ran back to back (the soak)."""
+
+    policy: PolicyRuntime
+    timings: StageTimings
+
+    def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        with self.timings.timed("policy"):
+            return self.policy.scores(observation)
 
 class DecisionPipeline:
     """The daemon's decisions (see the module docstring). Owns the previous action, the policy's hand-over and
@@ -180,13 +197,6 @@ class DecisionPipeline:
             yield "home", action
         if self._phase in ("exploring", "returning"):
             yield "hover", int(Action.HOVER)
-
-    def _policy_scores(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """The goal policy's scores for one decision of the goal planner, timed as stage "policy" (inside the
-        stage "planner" that asks for them)."""
-        assert self.policy is not None
-        with self.timings.timed("policy"):
-            return self.policy.scores(observation)
 
     def _planner_action(
         self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int, thresholded: np.ndarray | None

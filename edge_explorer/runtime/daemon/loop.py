@@ -18,7 +18,7 @@ from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.runtime.daemon.config import DaemonConfig
-from edge_explorer.runtime.daemon.decisions import DecisionPipeline
+from edge_explorer.runtime.daemon.decisions import DecisionPipeline, TimedScores
 from edge_explorer.runtime.daemon.phases import FlightPhases
 from edge_explorer.runtime.daemon.report import CoverageTruth, Progress, RunRecord, RunReport, StageTimings
 from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
@@ -74,7 +74,8 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
         is loaded, else ``config.exploration_planner``; also the one a failing policy hands over to (without it)."""
         planner_config = PlannerConfig(follow=self.config.follow)
         if self.policy is not None:
-            return GoalPolicyPlanner(self._policy_scores, PredictiveConfig(planner=planner_config), self.table)
+            scores = TimedScores(self.policy, self.timings)
+            return GoalPolicyPlanner(scores, PredictiveConfig(planner=planner_config), self.table)
         if self.config.exploration_planner == "predfrontier":
             return PredictiveFrontier(PredictiveConfig(planner=planner_config), self.table)
         return NearestFrontier(planner_config, self.table)
