@@ -115,7 +115,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     bc.add_argument("--init", default="", help="goal-policy .safetensors to start from (default: random weights)")
     bc.add_argument("--steps", type=positive_int, default=4000, help="total optimizer steps (default 4000)")
     bc.add_argument("--batch-size", type=positive_int, default=32)
+    bc.add_argument("--lr", type=float, default=1e-3, help="peak learning rate of the cosine schedule (default 1e-3)")
     bc.add_argument("--threads", type=positive_int, default=1)
+    bc.add_argument("--device", default="cpu", help="torch device: cpu (default) or cuda (demonstrations on the GPU)")
+    bc.add_argument(
+        "--max-minutes", type=float, default=None, help="end this call with a checkpoint after M minutes (resumable)"
+    )
     bc.add_argument("--out", type=Path, required=True, help="run folder")
     bc.add_argument("--resume", action="store_true", help="continue the run in OUT")
     bc.set_defaults(func=_goal_bc)
@@ -254,8 +259,10 @@ def _goal_bc(args: argparse.Namespace) -> int:
         batch_size=args.batch_size,
         threads=args.threads,
         init=args.init,
+        learning_rate=args.lr,
+        device=args.device,
     )
-    state = train(config, args.out, resume=args.resume)
+    state = train(config, args.out, resume=args.resume, max_minutes=args.max_minutes)
     print(f"step {state['step']}: best val agreement with the expert {state['best_agreement']:.3f} → {args.out}")
     return 0
 

@@ -180,8 +180,11 @@ def _run_job(job: DemoJob) -> dict:
     predictor = load_predictor(job.predictor) if job.predictor else None
     policy = None
     if job.policy:
+        import torch
+
         from edge_explorer.learn.goal_net import TorchGoalPolicy
 
+        torch.set_num_threads(1)  # one process per core: torch's own threads would oversubscribe them
         policy = TorchGoalPolicy.from_file(job.policy)
     records = []
     for k, raster in enumerate(split_rasters(job.plans, job.split, job.first, job.stop)):

@@ -13,7 +13,7 @@ from edge_explorer.export.recipe import load_recipe
 from edge_explorer.learn.goal_card import ship_goal_policy
 from edge_explorer.learn.goal_demos import DemoConfig, fly_demo, load_demos, write_demos
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, TorchGoalPolicy, load_goal_net, save_goal_net
-from edge_explorer.learn.train_goal_bc import BCConfig, batch_tensors, train
+from edge_explorer.learn.train_goal_bc import BCConfig, DemoTensors, batch_tensors, train
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 from edge_explorer.runtime.daemon import choose_models
 from edge_explorer.world.raster import rasterize
@@ -48,7 +48,7 @@ def test_every_label_is_a_valid_goal_cell(demo_dirs):
 
 
 def test_mirroring_flips_windows_goals_and_turns(demo_dirs):
-    demos = load_demos(demo_dirs / "train")
+    demos = DemoTensors.of(load_demos(demo_dirs / "train"))
     idx = np.arange(min(len(demos), 4))
     plain = batch_tensors(demos, idx, np.zeros(len(idx), bool))
     mirrored = batch_tensors(demos, idx, np.ones(len(idx), bool))
@@ -90,6 +90,15 @@ def test_resume_equals_an_uninterrupted_run(demo_dirs, tmp_path):
     split = load_goal_net(tmp_path / "split" / "checkpoint.safetensors").state_dict()
     for key in whole:
         torch.testing.assert_close(split[key], whole[key])
+
+
+def test_a_spent_wall_time_box_ends_the_call_with_a_checkpoint_that_resumes(demo_dirs, tmp_path):
+    config = BCConfig(
+        train_demos=str(demo_dirs / "train"), val_demos=str(demo_dirs / "val"), batch_size=2, total_steps=4
+    )
+    state = train(config, tmp_path / "box", net=TINY_NET, max_minutes=0.0)  # the box is spent after one step
+    assert state["step"] == 1 and json.loads((tmp_path / "box" / "state.json").read_text())["step"] == 1
+    assert train(config, tmp_path / "box", resume=True, net=TINY_NET)["step"] == 4
 
 
 @pytest.mark.slow

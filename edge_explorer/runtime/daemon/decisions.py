@@ -46,7 +46,6 @@ from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec
 log = logging.getLogger(__name__)
 
 
-
 @dataclass(frozen=True)
 class TimedScores:
     """The goal policy's scores for one decision of the goal planner, timed as stage "policy" (inside the stage
@@ -60,6 +59,7 @@ class TimedScores:
     def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray:
         with self.timings.timed("policy"):
             return self.policy.scores(observation)
+
 
 class DecisionPipeline:
     """The daemon's decisions (see the module docstring). Owns the previous action, the policy's hand-over and
