@@ -229,7 +229,9 @@ def ship_goal_policy(
             "command": command,
             "stages": stages,
             "wall_time_h": sum(float(s["state"].get("wall_s", 0.0)) for s in stages) / 3600,
-            "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} shared cores, CPU only",
+            "hardware": [
+                s["state"].get("hardware", "not recorded (runs before 2026-11-26: this host's CPU)") for s in stages
+            ],
         },
         "evaluation_buildings": buildings,
         "flight_ready": flight_ready(buildings["summary_all"] if buildings else None),

@@ -33,6 +33,7 @@ from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.csv_log import append_csv_row
 from edge_explorer.learn.goal_demos import Demos, load_demos
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
+from edge_explorer.learn.hardware import hardware_description
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 
 _MIRRORED_ACTION = torch.tensor([0, 2, 1, 3, 5, 4])  # hover, right↔left, forward, right+fwd↔left+fwd
@@ -199,6 +200,7 @@ def train(
     per_epoch = len(train_set) // config.batch_size
     if per_epoch == 0:
         raise EdgeExplorerError(f"{len(train_set)} decisions are fewer than one batch of {config.batch_size}")
+    state["hardware"] = hardware_description(config.device, 0, config.threads)  # where this call trains
     started = time.perf_counter() - state["wall_s"]
     deadline = time.perf_counter() + 60.0 * max_minutes if max_minutes is not None else math.inf
     with tqdm(total=config.total_steps, initial=state["step"], desc="goal BC", unit="step") as bar:

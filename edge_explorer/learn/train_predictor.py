@@ -51,6 +51,7 @@ import torch.nn.functional as F
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn import ddp, toml_config
 from edge_explorer.learn.csv_log import append_csv_row
+from edge_explorer.learn.hardware import hardware_description
 from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
 from edge_explorer.mapping.metrics import map_metrics
@@ -267,16 +268,6 @@ class TrainState:
     best_step: int = -1
     last_val: dict | None = None
     stretches: list[dict] = dataclasses.field(default_factory=list)  # one per train() call: steps, wall, hardware
-
-
-def hardware_description(device: str, loader_workers: int, threads: int) -> str:
-    """Where a stretch of training ran, in words, for the model card's provenance."""
-    import platform
-
-    cpu = f"{platform.machine()}, {os.cpu_count()} cores"
-    if device == "cuda":
-        return f"{torch.cuda.get_device_name()} (bfloat16 autocast), {cpu}, {loader_workers} loader workers"
-    return f"{cpu}, CPU only, {threads} torch thread(s), {loader_workers} loader workers"
 
 
 def _replace_atomically(write, path: Path) -> None:

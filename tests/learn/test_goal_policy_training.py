@@ -126,6 +126,7 @@ def test_train_ship_export_and_fly_the_exported_policy_on_the_two_rooms(demo_dir
     models = tmp_path / "models"
     card = ship_goal_policy(weights, [tmp_path / "bc"], models / "policy", evaluation, "test", tmp_path / "docs")
     assert card["flight_ready"]["ready"] and card["training"]["stages"][0]["kind"] == "bc"
+    assert "CPU only" in card["training"]["hardware"][0]  # where the stage trained, from its own state
     assert card["architecture"]["macs"] > 0 and (tmp_path / "docs" / "learning_curves.png").is_file()
 
     monkeypatch.setattr(calibration, "val_rasters", lambda c: ([rooms] * c.plans, [rooms] * c.held_back_plans))
