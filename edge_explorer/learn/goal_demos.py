@@ -159,15 +159,18 @@ class DemoJob:
         return self.out.with_suffix(".json")
 
 
-def split_rasters(plans_dir: str, split: str, first: int, stop: int) -> list[PlanRaster]:
-    """Plans [first, stop) of a split of the generated dataset in ``plans_dir``, rasterized at 0.05 m."""
+def split_rasters(
+    plans_dir: str, split: str, first: int, stop: int, every: int = 1, offset: int = 0
+) -> list[PlanRaster]:
+    """Plans [first, stop) of a split of the generated dataset in ``plans_dir``, rasterized at 0.05 m; with
+    ``every`` > 1 only each ``every``-th of them from ``offset`` (one worker's share, the others never rasterized)."""
     from itertools import islice
 
     from edge_explorer.world.catalog import plan_to_raster
     from edge_explorer.world.dataset import iter_shard_plans
 
     shards = sorted((Path(plans_dir) / split).glob("shard-*.jsonl.gz"))
-    return [plan_to_raster(p) for p in islice(iter_shard_plans(shards), first, stop)]
+    return [plan_to_raster(p) for p in islice(iter_shard_plans(shards), first + offset, stop, every)]
 
 
 def _run_job(job: DemoJob) -> dict:

@@ -138,8 +138,8 @@ def _make_env(config: PPOConfig, rank: int):  # noqa: ANN202 - SB3's env factory
 
         cv2.setNumThreads(1)
         torch.set_num_threads(1)
-        share = range(rank, config.train_plans, config.n_envs)  # each worker its own plans
-        rasters = [r for k, r in enumerate(split_rasters(config.plans, "train", 0, config.train_plans)) if k in share]
+        # each worker its own plans: k ≡ rank (mod n_envs)
+        rasters = split_rasters(config.plans, "train", 0, config.train_plans, every=config.n_envs, offset=rank)
         predictor = load_predictor(config.predictor) if config.predictor else None
         env_config = EnvConfig(max_steps=config.max_steps, thresholds=thresholds_of(predictor))
         env = GoalEnv(rasters, env_config, predictor=predictor)

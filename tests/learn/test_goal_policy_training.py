@@ -144,3 +144,13 @@ def test_train_ship_export_and_fly_the_exported_policy_on_the_two_rooms(demo_dir
     assert record["ending"] == "goal" and record["collisions"] == 0
     choice = choose_models(models, "auto", ("onnxruntime-cpu",))
     assert choice.policy is not None and choice.notes[0].startswith("planner: drl")
+
+
+def test_a_workers_share_of_the_split_is_every_nth_plan_from_its_rank(tmp_path):
+    from edge_explorer.learn.goal_demos import split_rasters
+    from edge_explorer.world.dataset import generate_dataset
+
+    generate_dataset(tmp_path, count=8, dataset_seed=5, split_fractions=(6, 1, 1), workers=1)
+    every = [r.name for r in split_rasters(str(tmp_path), "train", 0, 6)]
+    shares = [[r.name for r in split_rasters(str(tmp_path), "train", 0, 6, every=2, offset=k)] for k in (0, 1)]
+    assert shares == [every[0::2], every[1::2]]
