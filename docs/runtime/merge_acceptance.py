@@ -27,7 +27,7 @@ def main() -> None:
     flights = sorted((f for d in docs for f in d["flights"]), key=lambda f: (f["run"], f["plan"]))
     table = summarize(flights, load_reference(args.compare))
     doc = {
-        "command": " && ".join(d["command"] for d in docs) + f" (merged by docs/runtime/merge_acceptance.py)",
+        "command": " && ".join(d["command"] for d in docs) + " (merged by docs/runtime/merge_acceptance.py)",
         "plans": ",".join(d["plans"] for d in docs),
         "runs_per_plan": docs[0]["runs_per_plan"],
         "time_limit_s": docs[0]["time_limit_s"],
