@@ -134,6 +134,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     ppo.add_argument("--predictor", default="models/predictor", help="predictor ('' = phase 1: no predictor)")
     ppo.add_argument("--decisions", type=positive_int, default=20_000, help="total decisions (default 20000)")
     ppo.add_argument("--envs", type=positive_int, default=2, help="environment worker processes (default 2)")
+    ppo.add_argument("--train-plans", type=positive_int, default=2000, help="train plans the envs share (2000)")
+    ppo.add_argument(
+        "--eval-plans", type=positive_int, default=10, help="val plans per evaluation (10; more select better)"
+    )
     ppo.add_argument("--out", type=Path, required=True, help="run folder")
     ppo.add_argument("--resume", action="store_true", help="continue the run in OUT")
     add_ray_argument(ppo)
@@ -271,7 +275,12 @@ def _goal_ppo(args: argparse.Namespace) -> int:
     from edge_explorer.learn.train_goal_ppo import PPOConfig, train
 
     config = PPOConfig(
-        init_weights=args.init, predictor=args.predictor, total_decisions=args.decisions, n_envs=args.envs
+        init_weights=args.init,
+        predictor=args.predictor,
+        total_decisions=args.decisions,
+        n_envs=args.envs,
+        train_plans=args.train_plans,
+        eval_plans=args.eval_plans,
     )
     decisions = train(config, args.out, resume=args.resume, ray=args.ray)
     print(f"{decisions} decisions trained → {args.out} (best.safetensors, val_log.csv)")
