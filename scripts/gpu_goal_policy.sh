@@ -5,7 +5,7 @@
 #   2. a short probe measures behaviour-cloning steps/s on this GPU (demonstrations on the device, bf16 autocast),
 #   3. behaviour cloning (`train goal-bc --device cuda`) for BC_S seconds, its cosine schedule sized to end in them,
 #   4. one DAgger round: the cloned policy flies further train plans while the expert labels every decision, for
-#      DAGGER_S seconds,
+#      DAGGER_S seconds (0 = none: then the box ends after the cloning),
 #   5. a fine-tune from the clone on the expert's and the DAgger decisions for the rest of the box,
 #   6. the runs, the log and as many demonstration shards as $OUT takes back (45 MiB) are packed into $OUT.
 # Needs VAL (made on the host with the same predictor: `train goal-demos --out data/goal_demos_h200/val --split val
@@ -72,7 +72,7 @@ rm -rf "$RUNS/bc"
 $EE train goal-bc --train-demos "$DEMOS/train" --val-demos "$VAL" --steps "$(steps_for "$BC_S")" \
     --batch-size "$BATCH" --device "$DEVICE" --max-minutes "$(python3 -c "print($BC_S / 60)")" --out "$RUNS/bc"
 
-if [ -f "$RUNS/bc/best.safetensors" ] && [ "$(left)" -gt $((DAGGER_S + 90)) ]; then
+if [ "$DAGGER_S" -gt 0 ] && [ -f "$RUNS/bc/best.safetensors" ] && [ "$(left)" -gt $((DAGGER_S + 90)) ]; then
     echo "== 4. DAgger round ($DAGGER_S s) $(date -u +%T)"
     demos_for "$DAGGER_S" --out "$DEMOS/dagger1" --split train --first "$DAGGER_FIRST" --count 20000 \
         --predictor "$PREDICTOR" --policy "$RUNS/bc/best.safetensors" --workers "$WORKERS"
