@@ -7,6 +7,12 @@ flies to a frontier the predictor has already filled in. When no fused frontier 
 rest of the building) the observed frontier takes over, so the flight can still confirm what the predictor was
 unsure of. Without a predictor the fused map is the observed map and this is a gain-scored frontier explorer.
 
+A prediction that only begins to fill a corridor or a room beyond a frontier does not end that frontier
+(``open_prediction``, on by default): predicted-FREE cells that connect to fused UNKNOWN space count as unknown
+there, so the mouth of a corridor the predictor extended by two metres stays a target. Without it the expert turned
+away from such a mouth and came back at the end of the flight (one val plan: a third of the building left to the
+last 40 m). A room the prediction closes off with walls is still filled in and skipped.
+
 Goals: the fused frontier is cut into clusters (:func:`~edge_explorer.plan.frontier.frontier_clusters`). For each
 cluster the goal is the planning-graph node within ``goal_radius_m`` of it that is nearest along the graph (one
 Dijkstra search from the vehicle serves every cluster). Its *gain* is the number of 0.20 m cells that are UNKNOWN in
@@ -65,6 +71,9 @@ class PredictiveConfig:
     gain_exponent: float = 0.0  # γ: 0 flies to the nearest fused frontier worth a look, 1 to the most gain per metre
     min_gain_cells: int = 30  # clusters revealing fewer unknown cells (1.2 m²) wait until nothing better is left
     done_fraction: float = 0.8  # a target cluster is done when this share of its cells is no fused frontier
+    # a corridor the prediction only began to fill stays a target (fused_frontier_mask). On val plans 40-135 (1 run,
+    # seed 0, models/predictor): 35.6 m to 95 % coverage with it, 37.9 m without; frontier+pred 41.7 m.
+    open_prediction: bool = True
 
     def __post_init__(self) -> None:
         if (
@@ -78,11 +87,20 @@ class PredictiveConfig:
             raise ValueError("done_fraction must be in (0, 1]")
 
 
-def fused_frontier_mask(observed_low: np.ndarray, fused_low: np.ndarray) -> np.ndarray:
-    """Observed FREE cells with an 8-neighbour UNKNOWN in ``fused_low`` (same 0.20 m grid)."""
+def fused_frontier_mask(observed_low: np.ndarray, fused_low: np.ndarray, open_prediction: bool = False) -> np.ndarray:
+    """Observed FREE cells with an 8-neighbour UNKNOWN in ``fused_low`` (same 0.20 m grid).
+
+    With ``open_prediction`` a predicted-FREE cell (unobserved, FREE in the fused map) counts as unknown too when
+    predicted-free cells connect it to a fused UNKNOWN cell: a prediction that fills only the first metres of a
+    corridor leaves the corridor's mouth a frontier, while a room the prediction closes off with walls does not."""
     if observed_low.shape != fused_low.shape:
         raise ValueError(f"fused map shape {fused_low.shape} differs from the observed map's {observed_low.shape}")
     unknown = (fused_low == UNKNOWN).astype(np.uint8)
+    if open_prediction:
+        region = (unknown | ((fused_low == FREE) & (observed_low == UNKNOWN))).astype(np.uint8)
+        _, labels = cv2.connectedComponents(region, connectivity=8)
+        open_labels = np.unique(labels[unknown.astype(bool)])
+        unknown = np.isin(labels, open_labels[open_labels > 0]).astype(np.uint8)
     near = cv2.dilate(unknown, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return (observed_low == FREE) & near.astype(bool)
 
@@ -147,7 +165,8 @@ class PredictiveFrontier(GoalPlanner):
         if self._committed is None or self._committed.shape != maps.low.shape:
             self._committed = np.zeros(maps.low.shape, dtype=bool)
         observed = frontier_mask(maps.low)
-        frontier = (fused_frontier_mask(maps.low, self._fused) | (self._committed & observed)) & ~dropped
+        fused_frontier = fused_frontier_mask(maps.low, self._fused, self.predictive.open_prediction)
+        frontier = (fused_frontier | (self._committed & observed)) & ~dropped
         if not frontier.any():
             frontier = observed & ~dropped
         return View(maps, pose, frontier, self.config)

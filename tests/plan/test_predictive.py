@@ -28,6 +28,18 @@ def test_a_frontier_the_prediction_filled_is_no_target():
         fused_frontier_mask(observed, fused[:, :4])
 
 
+def test_open_prediction_keeps_a_corridor_mouth_the_prediction_only_began_to_fill():
+    observed = np.full((5, 12), UNKNOWN, dtype=np.int8)
+    observed[:, :3] = FREE
+    fused = observed.copy()
+    fused[:, 3:6] = FREE  # the predictor fills the first 0.6 m of the corridor; beyond it, unknown
+    assert not fused_frontier_mask(observed, fused).any()  # no fused UNKNOWN cell next to an observed free one
+    assert fused_frontier_mask(observed, fused, open_prediction=True)[:, 2].all()  # free cells lead to unknown
+    assert not fused_frontier_mask(observed, fused, open_prediction=True)[:, :2].any()
+    fused[:, 6] = OCCUPIED  # the predictor closes the corridor off with a wall: filled, no target
+    assert not fused_frontier_mask(observed, fused, open_prediction=True).any()
+
+
 def test_gain_counts_unknown_cells_in_range_and_in_sight():
     grid = GridSpec((0.0, 0.0), 0.2, (21, 21))
     unknown = np.zeros(grid.shape, dtype=bool)

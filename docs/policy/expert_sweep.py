@@ -1,0 +1,120 @@
+"""Fly the predictive expert (or the goal policy) with planner-setting overrides on val plans: the sweep that chose
+the expert's settings (docs/policy/goal_policy.md, "The expert, session 11").
+
+Each run is the benchmark's run (``bench explore``'s start pose, noise seed and end rule: 95 % coverage and 95 %
+correct coverage, 1500 steps) on one val plan, so the figures pair with ``bench explore --plans`` on the same
+plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.PredictiveConfig`::
+
+    python docs/policy/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
+    python docs/policy/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
+    python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
+
+It prints the mean path at 95 % coverage, runs that reached it and collisions, and writes every run to
+``runs/expert_sweep/NAME.json``. Tune on val plans only: the test split and A-D are the acceptance.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import json
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from edge_explorer.bench import explore as bench
+from edge_explorer.plan.frontier import NearestFrontier
+from edge_explorer.plan.goal_policy import GoalPolicyPlanner
+from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
+from edge_explorer.predict.predictor import thresholds_of
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.world.catalog import plan_to_raster
+from edge_explorer.world.dataset import iter_shard_plans
+from edge_explorer.world.raster import PlanRaster
+
+_WORKER: dict = {}
+
+
+def parse_overrides(pairs: list[str]) -> dict:
+    """``key=value`` pairs → PredictiveConfig keyword arguments, typed like the fields' defaults."""
+    defaults = {f.name: f.default for f in dataclasses.fields(PredictiveConfig)}
+    out = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        if key not in defaults or isinstance(defaults[key], (PredictiveConfig, type(None))) or not value:
+            raise SystemExit(f"{pair!r}: expected key=value with key one of {sorted(defaults)}")
+        default = defaults[key]
+        out[key] = value == "True" if isinstance(default, bool) else type(default)(float(value))
+    return out
+
+
+def _init(args: argparse.Namespace, overrides: dict) -> None:
+    _WORKER.update(args=args, config=PredictiveConfig(**overrides), predictor=bench.load_predictor(args.predictor))
+    if args.planner == "drl":
+        _WORKER["policy"] = bench.load_policy(args.policy)
+
+
+def fly(raster: PlanRaster) -> tuple[str, float | None, int]:
+    """(plan, path at 95 % coverage or None, collisions) of one benchmark run on ``raster``."""
+    args, predictor = _WORKER["args"], _WORKER["predictor"]
+    max_steps = bench.BenchConfig().max_steps
+    config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
+    env = ExplorationEnv([raster], config, predictor=predictor)
+    if args.planner == "drl":
+        planner = GoalPolicyPlanner(_WORKER["policy"], _WORKER["config"], env.table)
+    elif args.planner == "frontier":
+        planner = NearestFrontier(table=env.table)
+    else:
+        planner = PredictiveFrontier(_WORKER["config"], env.table)
+    planner.reset()
+    _, info = env.reset(seed=bench.run_seed(0, raster.name, 0), options={"start_pose": bench.start_pose(raster, 0)})
+    previous, collisions, at_goal = 0, 0, None
+    for _ in range(max_steps):
+        if info["coverage"] >= 0.95 and at_goal is None:
+            at_goal = float(info["path_length_m"])
+        if info["coverage"] >= 0.95 and info["correct_coverage"] >= 0.95:
+            break
+        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
+        if action is None:
+            break
+        _, _, _, _, info = env.step(action)
+        collisions += int(info["collided"])
+        previous = 0 if info["collided"] else action
+    return raster.name, at_goal, collisions
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("overrides", nargs="*", help="PredictiveConfig fields, key=value")
+    parser.add_argument("--name", required=True)
+    parser.add_argument("--first", type=int, default=40, help="first val plan")
+    parser.add_argument("--count", type=int, default=96)
+    parser.add_argument("--planner", choices=("predfrontier", "frontier", "drl"), default="predfrontier")
+    parser.add_argument("--predictor", default="models/predictor")
+    parser.add_argument("--policy", default="models/policy")
+    parser.add_argument("--plans", type=Path, default=Path("data/plans/val"), help="the val split's shards")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    overrides = parse_overrides(args.overrides)
+    shards = sorted(args.plans.glob("*.jsonl.gz"))
+    if not shards:
+        raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
+    plans = [plan_to_raster(p) for p in itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)]
+    with Pool(args.workers, initializer=_init, initargs=(args, overrides)) as pool:
+        runs = list(tqdm(pool.imap(fly, plans), total=len(plans), desc=args.name))
+    paths = [r[1] if r[1] is not None else float("nan") for r in runs]
+    out = Path("runs/expert_sweep") / f"{args.name}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"args": vars(args) | {"plans": str(args.plans)}, "overrides": overrides, "runs": runs}))
+    reached = sum(r[1] is not None for r in runs)
+    print(
+        f"{args.name}: mean path at 95 % {np.nanmean(paths):.2f} m, reached {reached}/{len(runs)}, "
+        f"collisions {sum(r[2] for r in runs)} ({overrides or 'defaults'}) -> {out}"
+    )
+
+
+if __name__ == "__main__":
+    main()
