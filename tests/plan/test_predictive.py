@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from edge_explorer.plan.baselines import make_planner
-from edge_explorer.plan.predictive import PredictiveFrontier, fused_frontier_mask, visible_unknown
+from edge_explorer.plan.predictive import (
+    PredictiveConfig,
+    PredictiveFrontier,
+    choose_cluster,
+    fused_frontier_mask,
+    visible_unknown,
+)
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 from edge_explorer.world.raster import rasterize
@@ -38,6 +44,18 @@ def test_open_prediction_keeps_a_corridor_mouth_the_prediction_only_began_to_fil
     assert not fused_frontier_mask(observed, fused, open_prediction=True)[:, :2].any()
     fused[:, 6] = OCCUPIED  # the predictor closes the corridor off with a wall: filled, no target
     assert not fused_frontier_mask(observed, fused, open_prediction=True).any()
+
+
+def test_a_low_gain_cluster_on_the_way_is_flown_before_a_far_rich_one():
+    paths_m = np.array([15.0, 3.0, 20.0])
+    gains = np.array([200, 10, 400])  # the near cluster shows too little to be a target on its own
+    strict = PredictiveConfig(near_fallback_ratio=0.0)
+    assert choose_cluster(paths_m, gains, strict) == 0  # γ = 0: the nearest cluster worth a look
+    assert choose_cluster(paths_m, gains, PredictiveConfig(near_fallback_ratio=0.3)) == 1  # 3 m < 0.3 × 15 m
+    assert choose_cluster(np.array([15.0, 6.0]), np.array([200, 10]), PredictiveConfig(near_fallback_ratio=0.3)) == 0
+    assert choose_cluster(paths_m, gains, PredictiveConfig(gain_exponent=1.0, near_fallback_ratio=0.0)) == 2
+    assert choose_cluster(np.array([9.0, 4.0]), np.array([5, 7]), strict) == 1  # none worth it: the nearest
+    assert choose_cluster(np.zeros(0), np.zeros(0, dtype=int), strict) is None
 
 
 def test_gain_counts_unknown_cells_in_range_and_in_sight():
