@@ -1,11 +1,12 @@
 """Fly the predictive expert (or the goal policy) with planner-setting overrides on val plans: the sweep that chose
-the expert's settings (docs/policy/goal_policy.md, "The expert, session 11").
+the expert's settings (docs/policy/goal_policy.md, sections "Status" of sessions 11 and 12).
 
 Each run is the benchmark's run (``bench explore``'s start pose, noise seed and end rule: 95 % coverage and 95 %
 correct coverage, 1500 steps) on one val plan, so the figures pair with ``bench explore --plans`` on the same
 plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.PredictiveConfig`::
 
     python docs/policy/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
+    python docs/policy/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
     python docs/policy/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
     python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
 
