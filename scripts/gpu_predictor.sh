@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The map predictor's GPU stretch (issue #17), for a lent machine (`device`: one GPU, 16 cores), in one wall-time box:
 #   1. the cores record predictor samples (`train predictor-data`, resumable shards) for DATA_S seconds,
-#   2. a short probe measures training steps/s on this GPU with DataLoader workers and bfloat16 autocast,
+#   2. a short probe measures training steps/s on this GPU with DataLoader workers and bfloat16 autocast (skipped when
+#      RATE gives the steps/s already measured on this kind of machine: an H200 ran 32-38),
 #   3. the U-Net trains for the rest of the box with total_steps set from that rate (the cosine schedule ends in it),
 #   4. the run folder, the recorded train shards and the log are packed into $OUT (at most 16 MiB a file).
 # Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
@@ -42,6 +43,7 @@ for _ in $(seq "$DATA_S"); do kill -0 "$DATA_PID" 2>/dev/null || break; sleep 1;
 kill -TERM -- -"$DATA_PID" 2>/dev/null; wait "$DATA_PID" 2>/dev/null
 echo "finished train shards: $(ls data/predictor3/train/*.json | wc -l)"
 
+if [ -n "${RATE:-}" ]; then echo "== 2. probe skipped: RATE=$RATE steps/s given"; else
 echo "== 2. probe $(date -u +%T)"
 python3 - "$CONFIG" <<'PY'
 import pathlib, sys
@@ -59,6 +61,7 @@ if len(rows) >= 2:
     print((int(rows[-1]['step']) - int(rows[0]['step'])) / (float(rows[-1]['wall_s']) - float(rows[0]['wall_s'])))
 else:
     s = json.load(open('runs/probe/state.json')); print(s['step'] / s['wall_s'])")
+fi  # probe
 echo "steps/s: $RATE"
 
 echo "== 3. train $(date -u +%T), $(left) s left"
@@ -79,6 +82,6 @@ $EE train predictor --config /tmp/gpu.toml --out "$RUN" --device "$DEVICE" --loa
 
 echo "== 4. pack $(date -u +%T)"
 nvidia-smi --query-gpu=name,memory.used --format=csv || true
-tar czf "$OUT/run.tar.gz" "$RUN" runs/probe/state.json runs/probe/train_log.csv
+tar czf "$OUT/run.tar.gz" "$RUN" $(ls runs/probe/state.json runs/probe/train_log.csv 2>/dev/null)
 tar cf - data/predictor3/train data/predictor3/manifest.json | split -b 15M - "$OUT/train_shards.tar."
 ls -la "$OUT"

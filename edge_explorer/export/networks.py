@@ -29,6 +29,7 @@ import torch
 
 from edge_explorer.export.calibration import Feed
 from edge_explorer.export.recipe import Recipe, RecipeError
+from edge_explorer.export.unet_equalization import choose_equalization
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS, PREDICTOR_WINDOW_CELLS
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GOAL_POOL
 from edge_explorer.predict.encoding import INPUT_CHANNELS
@@ -292,15 +293,29 @@ def base_metadata(kind: str, checkpoint: Path | None) -> dict[str, str]:
     }
 
 
-def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None) -> ExportNetwork:
-    """The export view of a (fused) U-Net."""
+def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None, equalize: bool = True) -> ExportNetwork:
+    """The export view of a (fused) U-Net. With ``equalize`` the network's ``prepare`` picks the cross-layer
+    equalization that suits int8 best on the calibration observations
+    (:func:`~edge_explorer.export.unet_equalization.choose_equalization`) and exports that equivalent network."""
     size = PREDICTOR_WINDOW_CELLS
+    metadata = {**base_metadata("predictor", checkpoint), "edge_explorer.output": "P(occupied) per cell, [1, 1, S, S]"}
+    prepare = None
+    if equalize:
+
+        def prepare(feeds: list[Feed]) -> ExportNetwork:
+            chosen, strength, errors = choose_equalization(module, [f["map"] for f in feeds])
+            record = {
+                "strength": strength,
+                "fake_quant_error_by_strength": {str(k): round(v, 5) for k, v in errors.items()},
+                "calibration_observations": len(feeds),
+                "what": "edge_explorer.export.unet_equalization (same function, rescaled ReLU channels)",
+            }
+            network = predictor_network(chosen, checkpoint, equalize=False)
+            meta = {**network.metadata, "edge_explorer.equalization": json.dumps(record)}
+            return ExportNetwork(network.kind, network.module, network.inputs, network.outputs, meta)
+
     return ExportNetwork(
-        "predictor",
-        module.eval(),
-        {"map": (1, INPUT_CHANNELS, size, size)},
-        ("occupancy",),
-        {**base_metadata("predictor", checkpoint), "edge_explorer.output": "P(occupied) per cell, [1, 1, S, S]"},
+        "predictor", module.eval(), {"map": (1, INPUT_CHANNELS, size, size)}, ("occupancy",), metadata, None, prepare
     )
 
 

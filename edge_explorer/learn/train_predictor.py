@@ -8,7 +8,8 @@ Loss: per-cell BCE on the logits, weighted by :func:`edge_explorer.predict.encod
 interior cells count 1, unobserved exterior cells (target "occupied") ``exterior_weight``, observed cells
 ``observed_weight`` (default 0: the observation always overrides the prediction, so learning to copy it is wasted
 capacity) — summed and divided by the batch's total weight. ``init_weights`` starts from another run's checkpoint
-(fine-tuning).
+(fine-tuning); ``quantization_aware`` rounds every ReLU tensor to int8 levels in the loop
+(:mod:`edge_explorer.learn.fake_quant`), for weights that survive the int8 export.
 
 Validation (every ``val_every_steps``): weighted BCE and the paper's F1 (DESIGN.md §7) of the observed map plus the
 dynamically thresholded prediction (§5), over ``val_samples`` fixed samples of the val split, inside the ego window
@@ -51,6 +52,7 @@ import torch.nn.functional as F
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn import ddp, toml_config
 from edge_explorer.learn.csv_log import append_csv_row
+from edge_explorer.learn.fake_quant import attach_fake_quant
 from edge_explorer.learn.hardware import hardware_description
 from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
@@ -71,6 +73,7 @@ class PredictorTrainConfig:
     observed_weight: float = 0.0
     augment: bool = True
     init_weights: str = ""  # a checkpoint.safetensors to start from (fine-tuning); "" = random initialisation
+    quantization_aware: bool = False  # round every ReLU tensor to int8 levels in the loop (learn.fake_quant)
     batch_size: int = 16
     learning_rate: float = 2e-3
     weight_decay: float = 1e-4
@@ -360,6 +363,8 @@ def train(
         from safetensors.torch import load_file
 
         model.load_state_dict(load_file(config.init_weights, device=device))
+    if config.quantization_aware:
+        attach_fake_quant(model)  # for the whole run, validation included: the model is selected as int8 runs it
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     state = load_checkpoint(out, model, optimizer, device) if resume else TrainState(train_set_size=len(train_set))
     if state.train_set_size != len(train_set):

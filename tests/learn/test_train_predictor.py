@@ -71,6 +71,17 @@ def test_two_steps_in_one_go_equal_one_step_and_a_resume(shard_dir, tmp_path):
     assert (split / "train_log.csv").read_text().count("\n") == 3  # header + 2 steps
 
 
+def test_quantization_aware_training_resumes_exactly_and_differs_from_plain(shard_dir, tmp_path):
+    config = _config(shard_dir, quantization_aware=True)
+    train(config, tmp_path / "straight")
+    train(config, tmp_path / "split", max_steps=1)
+    train(config, tmp_path / "split", resume=True)
+    train(_config(shard_dir), tmp_path / "plain")
+    a, b, plain = (load_file(str(tmp_path / run / "checkpoint.safetensors")) for run in ("straight", "split", "plain"))
+    assert all(bool((a[k] == b[k]).all()) for k in a)
+    assert any(not bool((a[k] == plain[k]).all()) for k in a)
+
+
 def test_loader_workers_build_the_same_batches_as_the_loop(shard_dir, tmp_path):
     config = _config(shard_dir, total_steps=3)
     train(config, tmp_path / "inline")
