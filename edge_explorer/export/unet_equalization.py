@@ -40,9 +40,7 @@ def _conv(block: nn.Module) -> nn.Conv2d:
 
 
 @torch.no_grad()
-def equalize_unet(
-    net: UNet, feeds: Sequence[np.ndarray], strength: float = 1.0, cap: float = 16.0
-) -> UNet:
+def equalize_unet(net: UNet, feeds: Sequence[np.ndarray], strength: float = 1.0, cap: float = 16.0) -> UNet:
     """A copy of the fused ``net`` with every ReLU tensor's channels rescaled towards its int8 range (see the module
     docstring); ``feeds`` are encoded windows (N, 2, H, W) or (2, H, W) as the calibration reads them."""
     if not 0.0 < strength <= 1.0 or cap < 1.0:
