@@ -303,12 +303,13 @@ def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None, e
     if equalize:
 
         def prepare(feeds: list[Feed]) -> ExportNetwork:
-            chosen, strength, errors = choose_equalization(module, [f["map"] for f in feeds])
+            chosen, choice, errors = choose_equalization(module, [f["map"] for f in feeds])
             record = {
-                "strength": strength,
-                "fake_quant_error_by_strength": {str(k): round(v, 5) for k, v in errors.items()},
+                "choice": choice,
+                "fake_quant_error": {label: round(error, 5) for label, error in errors.items()},
                 "calibration_observations": len(feeds),
-                "what": "edge_explorer.export.unet_equalization (same function, rescaled ReLU channels)",
+                "what": "edge_explorer.export.unet_equalization (same function, rescaled ReLU channels; '+ grid': "
+                "interior values of unobserved areas aligned to the int8 grid)",
             }
             network = predictor_network(chosen, checkpoint, equalize=False)
             meta = {**network.metadata, "edge_explorer.equalization": json.dumps(record)}

@@ -39,6 +39,77 @@ def _conv(block: nn.Module) -> nn.Conv2d:
     return conv
 
 
+class _Topology:
+    """The fused U-Net's ReLU blocks by name, their convolutions, who reads each block's output and which block's
+    output is concatenated with it: ``a_k`` / ``b_k`` the two convolutions of encoder level ``k``, ``u_k`` the
+    decoder block that outputs level ``k``'s width, ``h`` the head's 3×3 block; ``order`` is topological."""
+
+    def __init__(self, net: UNet) -> None:
+        self.net = net
+        levels = len(net.down)
+        self.blocks: dict[str, nn.Module] = {}
+        for k, level in enumerate(net.down):
+            self.blocks[f"a{k}"], self.blocks[f"b{k}"] = level[0], level[1]
+        for j, block in enumerate(net.up):
+            self.blocks[f"u{levels - 2 - j}"] = block
+        self.blocks["h"] = net.head[0]
+        encoder = [f"{part}{k}" for k in range(levels) for part in "ab"]
+        self.order = [*encoder, *(f"u{k}" for k in reversed(range(levels - 1))), "h"]
+        self.convs = {name: _conv(block) for name, block in self.blocks.items()}
+        # consumers of each tensor: (convolution, first input channel); partner: the tensor concatenated with it
+        self.consumers: dict[str, list[tuple[nn.Conv2d, int]]] = {name: [] for name in self.blocks}
+        self.partners: dict[str, str | None] = {name: None for name in self.blocks}
+        for k in range(levels):
+            self.consumers[f"a{k}"].append((self.convs[f"b{k}"], 0))
+            if k + 1 < levels:
+                self.consumers[f"b{k}"].append((self.convs[f"a{k + 1}"], 0))
+        for k in range(levels - 1):  # decoder block u_k reads cat(upsample(deeper), b_k)
+            deeper = f"b{levels - 1}" if k == levels - 2 else f"u{k + 1}"
+            self.consumers[deeper].append((self.convs[f"u{k}"], 0))
+            self.consumers[f"b{k}"].append((self.convs[f"u{k}"], net.config.channels[k + 1]))
+            self.partners[deeper], self.partners[f"b{k}"] = f"b{k}", deeper
+        self.consumers["u0"].append((self.convs["h"], 0))  # the head reads cat(upsample(u_0), input map): unscaled
+        self.consumers["h"].append((net.head[1], 0))
+
+    @torch.no_grad()
+    def outputs(self, net_input: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Every ReLU block's output for ``net_input``."""
+        outs: dict[str, torch.Tensor] = {}
+        hooks = [b.register_forward_hook(lambda _m, _i, o, n=n: outs.__setitem__(n, o)) for n, b in self.blocks.items()]
+        try:
+            self.net(net_input)
+        finally:
+            for hook in hooks:
+                hook.remove()
+        return outs
+
+    def channel_maxima(self, feeds: Sequence[np.ndarray]) -> dict[str, torch.Tensor]:
+        """Each ReLU tensor's per-channel maximum over ``feeds``."""
+        maxima: dict[str, torch.Tensor] = {}
+        for feed in feeds:
+            x = torch.from_numpy(np.asarray(feed, np.float32))
+            for name, out in self.outputs(x if x.ndim == 4 else x[None]).items():
+                r = out.amax(dim=(0, 2, 3))
+                maxima[name] = torch.maximum(maxima[name], r) if name in maxima else r
+        return maxima
+
+    def top(self, name: str, maxima: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The maximum that sets tensor ``name``'s int8 scale: its own, or over a skip concatenation's two parts
+        (one int8 scale for the concatenated tensor in TFLite); ``u0`` shares the head concat's with the 0/1 map."""
+        top = maxima[name].max()
+        if self.partners[name] is not None:
+            top = torch.maximum(top, maxima[self.partners[name]].max())
+        return torch.maximum(top, torch.tensor(1.0)) if name == "u0" else top
+
+    @torch.no_grad()
+    def rescale(self, name: str, scale: torch.Tensor) -> None:
+        """Multiply tensor ``name``'s channels by ``scale`` (> 0) and divide its consumers' inputs back."""
+        self.convs[name].weight.mul_(scale[:, None, None, None])
+        self.convs[name].bias.mul_(scale)
+        for conv, start in self.consumers[name]:
+            conv.weight[:, start : start + len(scale)] /= scale[None, :, None, None]
+
+
 @torch.no_grad()
 def equalize_unet(net: UNet, feeds: Sequence[np.ndarray], strength: float = 1.0, cap: float = 16.0) -> UNet:
     """A copy of the fused ``net`` with every ReLU tensor's channels rescaled towards its int8 range (see the module
@@ -46,58 +117,54 @@ def equalize_unet(net: UNet, feeds: Sequence[np.ndarray], strength: float = 1.0,
     if not 0.0 < strength <= 1.0 or cap < 1.0:
         raise ValueError(f"need 0 < strength <= 1 and cap >= 1, got strength={strength}, cap={cap}")
     net = copy.deepcopy(net).eval()
-    levels = len(net.down)
-    # the ReLU blocks, named: a_k / b_k the two convolutions of encoder level k, u_k the decoder block that
-    # outputs level k's width, h the head's 3x3 block
-    blocks: dict[str, nn.Module] = {}
-    for k, level in enumerate(net.down):
-        blocks[f"a{k}"], blocks[f"b{k}"] = level[0], level[1]
-    for j, block in enumerate(net.up):
-        blocks[f"u{levels - 2 - j}"] = block
-    blocks["h"] = net.head[0]
-    convs = {name: _conv(block) for name, block in blocks.items()}
-
-    ranges: dict[str, torch.Tensor] = {}
-
-    def keep_max(name: str):
-        def hook(_module, _inputs, out):
-            r = out.amax(dim=(0, 2, 3))
-            ranges[name] = torch.maximum(ranges[name], r) if name in ranges else r
-
-        return hook
-
-    hooks = [block.register_forward_hook(keep_max(name)) for name, block in blocks.items()]
-    for feed in feeds:
-        x = torch.from_numpy(np.asarray(feed, np.float32))
-        net(x if x.ndim == 4 else x[None])
-    for hook in hooks:
-        hook.remove()
-
-    # consumers of each tensor: (convolution, first input channel); partners: the tensor concatenated with it
-    consumers: dict[str, list[tuple[nn.Conv2d, int]]] = {name: [] for name in blocks}
-    partners: dict[str, str | None] = {name: None for name in blocks}
-    for k in range(levels):
-        consumers[f"a{k}"].append((convs[f"b{k}"], 0))
-        if k + 1 < levels:
-            consumers[f"b{k}"].append((convs[f"a{k + 1}"], 0))
-    for k in range(levels - 1):  # decoder block u_k reads cat(upsample(deeper), b_k)
-        deeper = f"b{levels - 1}" if k == levels - 2 else f"u{k + 1}"
-        width = net.config.channels[k + 1]
-        consumers[deeper].append((convs[f"u{k}"], 0))
-        consumers[f"b{k}"].append((convs[f"u{k}"], width))
-        partners[deeper], partners[f"b{k}"] = f"b{k}", deeper
-    consumers["u0"].append((convs["h"], 0))  # the head reads cat(upsample(u_0), input map): the map is not scaled
-    consumers["h"].append((net.head[1], 0))
-
-    for name, r in ranges.items():
-        top = r.max() if partners[name] is None else torch.maximum(r.max(), ranges[partners[name]].max())
-        if name == "u0":
-            top = torch.maximum(top, torch.tensor(1.0))  # shares the head concat's scale with the 0/1 map
+    topology = _Topology(net)
+    maxima = topology.channel_maxima(feeds)
+    for name, r in maxima.items():
+        top = topology.top(name, maxima)
         s = torch.where(r > 0, (top / r.clamp_min(1e-12)) ** strength, torch.ones_like(r)).clamp(max=cap)
-        convs[name].weight.mul_(s[:, None, None, None])
-        convs[name].bias.mul_(s)
-        for conv, start in consumers[name]:
-            conv.weight[:, start : start + len(s)] /= s[None, :, None, None]
+        topology.rescale(name, s)
+    return net
+
+
+@torch.no_grad()
+def align_unknown_to_grid(net: UNet, feeds: Sequence[np.ndarray]) -> UNet:
+    """A copy of the fused ``net`` whose ReLU tensors hold the value they take deep inside an unobserved region
+    exactly on their int8 grid — the same function, channels rescaled as in :func:`equalize_unet`.
+
+    Why: an unobserved cell is encoded as all-zero input, so far from the observed area every ReLU tensor is one
+    constant per channel. Per-tensor int8 rounding moves that constant by the same fraction of a step over thousands
+    of cells: not noise but a bias, which the decoder turns into P(occupied) shifts of tenths over whole unknown
+    areas (the 2026-11-26 H100 trainings; docs/predictor/at_scale.md). Channel ``c`` with interior value ``v_c`` is
+    scaled by ``n·step / v_c`` with ``n = round(v_c / step)`` (at least 1), ``step = top / 255`` the tensor's int8
+    step over ``feeds`` (asymmetric int8 of a ReLU tensor: 0 and every multiple of ``step`` are exact), never past
+    the tensor's top; the channel that sets the top keeps it. Tensors go in topological order and each interior value
+    is computed with the weights rounded per output channel to int8, as the export will round them.
+    """
+    net = copy.deepcopy(net).eval()
+    topology = _Topology(net)
+    maxima = topology.channel_maxima(feeds)
+    shape = np.shape(feeds[0])[-3:]
+    for name in topology.order:
+        r, top = maxima[name], topology.top(name, maxima)
+        step = top / 255.0
+        interior = _Topology(_rounded_weights(net)).outputs(torch.zeros(1, *shape))[name][0]
+        value = interior[:, interior.shape[-2] // 2, interior.shape[-1] // 2]
+        n = torch.round(value / step).clamp_min(1.0)
+        n = torch.where(r * n * step / value.clamp_min(1e-12) > top, torch.floor(value / step), n)
+        keep = (value <= 0) | (n < 1) | (r >= top)  # nothing to align, or it would leave the range or move the top
+        scale = torch.where(keep, torch.ones_like(value), n * step / value.clamp_min(1e-12))
+        topology.rescale(name, scale)
+        maxima[name] = r * scale
+    return net
+
+
+def _rounded_weights(net: nn.Module) -> nn.Module:
+    """A copy with every convolution's weights rounded to int8 per output channel (symmetric), as the export does."""
+    net = copy.deepcopy(net)
+    for module in net.modules():
+        if isinstance(module, nn.Conv2d):
+            step = module.weight.abs().amax(dim=(1, 2, 3), keepdim=True).clamp_min(1e-12) / 127.0
+            module.weight.data = torch.round(module.weight.data / step) * step
     return net
 
 
@@ -107,9 +174,9 @@ def _batch(feeds: Sequence[np.ndarray]) -> torch.Tensor:
 
 @torch.no_grad()
 def fake_quant_error(net: UNet, feeds: Sequence[np.ndarray]) -> float:
-    """Mean |ΔP(occupied)| over the feeds' unobserved cells when every ReLU tensor is rounded to 256 levels over
-    its range on the same feeds (per-tensor int8 activations, weights left in float): the part of the int8 error
-    that equalization changes."""
+    """Mean |ΔP(occupied)| over the feeds' unobserved cells when the weights are rounded to int8 per output channel
+    and every ReLU tensor to 256 levels over its range on the same feeds (per-tensor int8 activations): the part of
+    the int8 error that the rewrites of this module change."""
     x = _batch(feeds)
     relus = [m for m in net.modules() if isinstance(m, nn.ReLU)]
     tops: dict[int, float] = {}
@@ -123,24 +190,35 @@ def fake_quant_error(net: UNet, feeds: Sequence[np.ndarray]) -> float:
         step = max(tops[k], 1e-12) / 255.0
         return lambda _m, _i, o: torch.clamp(torch.round(o / step), 0, 255) * step
 
-    hooks = [m.register_forward_hook(rounded(k)) for k, m in enumerate(relus)]
-    try:
-        quantized = net(x)
-    finally:
-        for hook in hooks:
-            hook.remove()
+    quantized_net = _rounded_weights(net)
+    quantized_relus = [m for m in quantized_net.modules() if isinstance(m, nn.ReLU)]
+    for k, m in enumerate(quantized_relus):
+        m.register_forward_hook(rounded(k))
+    quantized = quantized_net(x)
     unobserved = (x.sum(dim=1, keepdim=True) == 0).expand_as(reference)
     return float((quantized - reference).abs()[unobserved].mean())
 
 
+def candidate_label(strength: float, aligned: bool) -> str:
+    """How :func:`choose_equalization` names a candidate in its errors and in the export's metadata."""
+    return f"strength {strength:g}" + (" + grid" if aligned else "")
+
+
 def choose_equalization(
-    net: UNet, feeds: Sequence[np.ndarray], strengths: Sequence[float] = CANDIDATE_STRENGTHS
-) -> tuple[UNet, float, dict[float, float]]:
-    """(network, strength, {strength: fake_quant_error}) for the strength with the least error on ``feeds`` —
-    calibration observations only, never the gates' held-back ones. Strength 0 is ``net`` itself."""
+    net: UNet,
+    feeds: Sequence[np.ndarray],
+    strengths: Sequence[float] = CANDIDATE_STRENGTHS,
+    align: Sequence[bool] = (False, True),
+) -> tuple[UNet, str, dict[str, float]]:
+    """(network, label, {label: fake_quant_error}) for the candidate with the least error on ``feeds`` —
+    calibration observations only, never the gates' held-back ones. A candidate is an equalization strength
+    (0: ``net`` itself), optionally followed by :func:`align_unknown_to_grid`; labels by :func:`candidate_label`."""
     errors, nets = {}, {}
     for strength in strengths:
-        nets[strength] = net if strength == 0 else equalize_unet(net, feeds, strength)
-        errors[strength] = fake_quant_error(nets[strength], feeds)
+        equalized = net if strength == 0 else equalize_unet(net, feeds, strength)
+        for aligned in align:
+            label = candidate_label(strength, aligned)
+            nets[label] = align_unknown_to_grid(equalized, feeds) if aligned else equalized
+            errors[label] = fake_quant_error(nets[label], feeds)
     best = min(errors, key=errors.__getitem__)
     return nets[best], best, errors

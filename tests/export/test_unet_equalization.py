@@ -1,5 +1,6 @@
-"""export.unet_equalization: the equalized U-Net computes the same function with its channels spread over each
-tensor's int8 range, and the export picks the strength with the least fake-quantization error."""
+"""export.unet_equalization: the equalized and the grid-aligned U-Nets compute the same function, the first with its
+channels spread over each tensor's int8 range, the second with an unobserved area's interior values exactly on the
+int8 grid; the export picks the candidate with the least fake-quantization error."""
 
 from __future__ import annotations
 
@@ -7,7 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from edge_explorer.export.unet_equalization import choose_equalization, equalize_unet, fake_quant_error
+from edge_explorer.export.unet_equalization import (
+    align_unknown_to_grid,
+    candidate_label,
+    choose_equalization,
+    equalize_unet,
+    fake_quant_error,
+)
 from edge_explorer.learn.unet import UNet, UNetConfig
 
 
@@ -43,13 +50,58 @@ def test_equalization_keeps_the_function_and_evens_the_channels():
     assert fake_quant_error(equalized, feeds) < fake_quant_error(model, feeds)
 
 
-def test_the_choice_is_the_strength_with_the_least_error_and_zero_is_the_network_itself():
+def test_the_choice_is_the_candidate_with_the_least_error_and_plain_is_the_network_itself():
     model, feeds = _fused_unet_with_uneven_channels(), _feeds()
-    chosen, strength, errors = choose_equalization(model, feeds, strengths=(0.0, 1.0))
-    assert set(errors) == {0.0, 1.0} and errors[strength] == min(errors.values())
-    assert errors[0.0] == pytest.approx(fake_quant_error(model, feeds))
-    only_plain, plain_strength, _ = choose_equalization(model, feeds, strengths=(0.0,))
-    assert only_plain is model and plain_strength == 0.0
+    chosen, label, errors = choose_equalization(model, feeds, strengths=(0.0, 1.0))
+    assert set(errors) == {candidate_label(s, a) for s in (0.0, 1.0) for a in (False, True)}
+    assert errors[label] == min(errors.values())
+    assert errors[candidate_label(0.0, False)] == pytest.approx(fake_quant_error(model, feeds))
+    only_plain, plain_label, _ = choose_equalization(model, feeds, strengths=(0.0,), align=(False,))
+    assert only_plain is model and plain_label == "strength 0"
+
+
+def _interior_values(model: UNet, size: int = 32) -> list[torch.Tensor]:
+    """Each ReLU tensor's value at the centre of an all-unobserved (all-zero) window."""
+    values: list[torch.Tensor] = []
+    relus = [m for m in model.modules() if isinstance(m, torch.nn.ReLU)]
+    hooks = [m.register_forward_hook(lambda _m, _i, o: values.append(o[0, :, o.shape[2] // 2, o.shape[3] // 2]))
+             for m in relus]  # fmt: skip
+    with torch.no_grad():
+        model(torch.zeros(1, 2, size, size))
+    for hook in hooks:
+        hook.remove()
+    return values
+
+
+def test_grid_alignment_keeps_the_function_and_puts_unobserved_interiors_on_the_int8_grid():
+    torch.manual_seed(1)
+    model = UNet(UNetConfig(channels=(4, 8, 8), head_channels=4, batchnorm=False)).eval()
+    with torch.no_grad():  # positive biases: every channel has something to align inside an unobserved area
+        for module in model.modules():
+            if isinstance(module, torch.nn.Conv2d):
+                module.bias.abs_().add_(0.05)
+    feeds = _feeds()
+    aligned = align_unknown_to_grid(model, feeds)
+    x = torch.from_numpy(np.concatenate(feeds))
+    with torch.no_grad():
+        assert torch.allclose(aligned(x), model(x), atol=1e-5)
+        relus = [m for m in aligned.modules() if isinstance(m, torch.nn.ReLU)]
+        tops = [0.0] * len(relus)
+        hooks = [m.register_forward_hook(lambda _m, _i, o, k=k: tops.__setitem__(k, float(o.amax())))
+                 for k, m in enumerate(relus)]  # fmt: skip
+        aligned(x)
+        for hook in hooks:
+            hook.remove()
+    before = _interior_values(model)
+    after = _interior_values(aligned)
+    # the stem reads zeros inside an unobserved area: its value is the bias, exact in float, so exactly on the grid
+    steps = after[0] / (tops[0] / 255.0)
+    sets_the_top = _stem_channel_maxima(aligned, feeds) >= tops[0]  # that channel keeps its scale, and the top
+    assert int(sets_the_top.sum()) == 1
+    assert torch.allclose(steps[~sets_the_top], torch.round(steps[~sets_the_top]), atol=1e-3)
+    steps_before = before[0] / (tops[0] / 255.0)  # the top is kept: the channel that sets it is not rescaled
+    assert float((steps_before - torch.round(steps_before)).abs().mean()) > 0.05  # it was off the grid before
+    assert fake_quant_error(aligned, feeds) < fake_quant_error(model, feeds)
 
 
 def test_a_unet_with_batchnorm_is_refused():
