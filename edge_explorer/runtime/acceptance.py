@@ -9,7 +9,8 @@ so path lengths compare with ``bench explore``.
 Per building and over all: flights that reached the coverage goal, collisions, the path length when coverage first
 reached the goal (min / max / avg / std, as in Table I) and its ratio to the exploration benchmark's average for the
 same building and method — the planner the daemon flew, ``+pred`` when it ran the predictor (:func:`bench_method`;
-``--compare``, default ``docs/bench/bundled.json``), exploration time, decision latency
+``--compare``, default ``docs/bench/bundled.json``), how many flights lie within ±15 % of that average and how many
+of the benchmark's own runs do (the spread of single runs), exploration time, decision latency
 p50 / p95 (the worst flight), the daemon's CPU % of one core at the profile's depth rate (mean and worst) and peak
 RSS (worst). Each flight's own outputs (summary, picture, telemetry log, daemon log, its terminal output in
 ``stdout.log``, its command line in ``command.json``) stay in ``--out``/``<plan>-run<k>/``.
@@ -173,8 +174,9 @@ def _write_outputs(
         plot_acceptance(plot_path, flights, table)
 
 
-Reference = dict[str, dict[str, float]]
-"""The exploration benchmark's average path at the goal: ``{method: {building: metres}}``."""
+Reference = dict[str, dict[str, list[float]]]
+"""The exploration benchmark's paths at the goal, one per run that reached it: ``{method: {building: [metres]}}``
+(a file with only the summary gives each building its average as its one path)."""
 
 
 def bench_method(flight: dict[str, Any]) -> str:
@@ -183,8 +185,8 @@ def bench_method(flight: dict[str, Any]) -> str:
 
 
 def load_reference(path: Path | None) -> Reference | None:
-    """The exploration benchmark's average path at the goal per method and building, from a ``bench explore`` JSON;
-    None when there is none (``path`` None and no default)."""
+    """The exploration benchmark's paths at the goal per method and building, from a ``bench explore`` JSON (its
+    per-run records, else its summary's averages); None when there is none (``path`` None and no default)."""
     from edge_explorer.errors import EdgeExplorerError
 
     if path is None:
@@ -192,18 +194,31 @@ def load_reference(path: Path | None) -> Reference | None:
             return None
         path = DEFAULT_COMPARE
     try:
-        plans = json.loads(path.read_text())["summary"]["plans"]
+        doc = json.loads(path.read_text())
         reference: Reference = {}
-        for plan, methods in plans.items():
+        if doc.get("runs"):
+            for run in doc["runs"]:
+                if run["path_at_coverage_m"] is not None:
+                    spec = run["spec"]
+                    reference.setdefault(spec["method"], {}).setdefault(spec["plan"], []).append(
+                        run["path_at_coverage_m"]
+                    )
+            return reference
+        for plan, methods in doc["summary"]["plans"].items():
             for method, result in methods.items():
                 if result["path_at_coverage_m"] is not None:
-                    reference.setdefault(method, {})[plan] = result["path_at_coverage_m"]["avg"]
+                    reference.setdefault(method, {})[plan] = [result["path_at_coverage_m"]["avg"]]
         return reference
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise EdgeExplorerError(
             f"--compare {path}: not a `bench explore` JSON ({exc}); give the file that "
             "`edge-explorer bench explore --methods frontier,frontier+pred --json PATH` wrote"
         ) from None
+
+
+def within_tolerance(paths_m: list[float], reference_m: float) -> int:
+    """How many of ``paths_m`` lie within ±:data:`PATH_TOLERANCE` of ``reference_m``."""
+    return sum(abs(p / reference_m - 1.0) <= PATH_TOLERANCE for p in paths_m)
 
 
 def _flight_line(s: dict[str, Any], run: int) -> str:
@@ -235,10 +250,12 @@ def _latency(f: dict[str, Any], key: str, figure: str = "decision_latency_ms") -
 def _group(flights: list[dict[str, Any]], reference: Reference | None) -> dict[str, Any]:
     """One row of the table; ``reference`` None for the ``all`` row (buildings differ)."""
     methods = sorted({bench_method(f) for f in flights})
-    reference_m = None
+    bench_paths: list[float] = []
     if reference is not None and len(methods) == 1:
-        reference_m = reference.get(methods[0], {}).get(flights[0]["plan"])
-    path = _stats([f["path_at_goal_m"] for f in flights if f["path_at_goal_m"] is not None])
+        bench_paths = reference.get(methods[0], {}).get(flights[0]["plan"], [])
+    reference_m = statistics.fmean(bench_paths) if bench_paths else None
+    paths = [f["path_at_goal_m"] for f in flights if f["path_at_goal_m"] is not None]
+    path = _stats(paths)
     ratio = None if path is None or reference_m is None else path["avg"] / reference_m
     return {
         "flights": len(flights),
@@ -249,6 +266,11 @@ def _group(flights: list[dict[str, Any]], reference: Reference | None) -> dict[s
         "bench_path_at_goal_m": reference_m,
         "path_ratio_to_bench": ratio,
         "path_within_tolerance": None if ratio is None else abs(ratio - 1.0) <= PATH_TOLERANCE,
+        # each flight against the benchmark's average, and the benchmark's own runs against it: the spread of single
+        # runs that no flight can beat, since a flight's noise seed changes its decisions as a bench run's does
+        "flights_within_tolerance": None if reference_m is None else within_tolerance(paths, reference_m),
+        "bench_runs": len(bench_paths) or None,
+        "bench_runs_within_tolerance": None if reference_m is None else within_tolerance(bench_paths, reference_m),
         "final_coverage_avg": statistics.fmean(f["coverage"] for f in flights),
         "exploration_s_avg": statistics.fmean(f["exploration_s"] or 0.0 for f in flights),
         "decision_p50_ms_worst": max(_latency(f, "p50") for f in flights),
@@ -268,24 +290,34 @@ def summarize(flights: list[dict[str, Any]], reference: Reference | None = None)
     out = {plan: _group([f for f in flights if f["plan"] == plan], reference or {}) for plan in plans}
     if flights:
         out["all"] = _group(flights, None)
+        for key in ("flights_within_tolerance", "bench_runs", "bench_runs_within_tolerance"):
+            counts = [out[plan][key] for plan in plans if out[plan][key] is not None]
+            out["all"][key] = sum(counts) if counts else None
     return out
 
 
 def markdown_table(table: dict[str, Any]) -> str:
     lines = [
         "| building | reached 95 % | collisions | path at 95 % (m) min / max / avg / std | bench method: avg (m) | "
-        "ratio | exploration (s) avg | decision p50 / p95 (ms) worst | decision CPU p95 (ms) worst | "
-        "CPU % of one core avg / worst | peak RSS (MB) worst | load avg |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "ratio | within ±15 % of the bench avg: flights / bench runs | exploration (s) avg | "
+        "decision p50 / p95 (ms) worst | decision CPU p95 (ms) worst | CPU % of one core avg / worst | "
+        "peak RSS (MB) worst | load avg |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, g in table.items():
         p = g["path_at_goal_m"]
         path = "–" if p is None else f"{p['min']:.1f} / {p['max']:.1f} / {p['avg']:.1f} / {p['std']:.1f}"
         bench = "–" if g["bench_path_at_goal_m"] is None else f"{g['bench_method']}: {g['bench_path_at_goal_m']:.1f}"
         ratio = "–" if g["path_ratio_to_bench"] is None else f"{g['path_ratio_to_bench']:.2f}"
+        within = "–"
+        if g["flights_within_tolerance"] is not None:
+            within = (
+                f"{g['flights_within_tolerance']}/{g['flights']} / {g['bench_runs_within_tolerance']}/{g['bench_runs']}"
+            )
         lines.append(
             f"| {name} | {g['reached_goal']}/{g['flights']} | {g['collisions']} | {path} | {bench} | {ratio} | "
-            f"{g['exploration_s_avg']:.0f} | {g['decision_p50_ms_worst']:.1f} / {g['decision_p95_ms_worst']:.1f} | "
+            f"{within} | {g['exploration_s_avg']:.0f} | "
+            f"{g['decision_p50_ms_worst']:.1f} / {g['decision_p95_ms_worst']:.1f} | "
             f"{g['decision_cpu_p95_ms_worst']:.1f} | "
             f"{g['cpu_percent_avg']:.1f} / {g['cpu_percent_worst']:.1f} | {g['peak_rss_mb_worst']:.0f} | "
             f"{g['load_average_1min_avg']:.1f} |"

@@ -804,7 +804,7 @@ def test_the_acceptance_bench_compares_each_building_with_the_benchmark_method_i
     }
     (tmp_path / "bench.json").write_text(json.dumps(bench))
     reference = load_reference(tmp_path / "bench.json")
-    assert reference == {"frontier": {"A": 70.0}, "frontier+pred": {"A": 60.0}}
+    assert reference == {"frontier": {"A": [70.0]}, "frontier+pred": {"A": [60.0]}}
 
     def flight(planner, predictor, path_m):
         return {
@@ -830,3 +830,37 @@ def test_the_acceptance_bench_compares_each_building_with_the_benchmark_method_i
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(EdgeExplorerError, match="not a `bench explore` JSON"):
         load_reference(tmp_path / "bad.json")
+
+
+def test_the_acceptance_bench_counts_single_flights_and_the_benchmarks_own_runs_within_15_percent(tmp_path):
+    from edge_explorer.runtime.acceptance import load_reference, markdown_table, summarize
+
+    def record(plan, run, path_m):
+        return {"spec": {"method": "drl+pred", "plan": plan, "run": run}, "path_at_coverage_m": path_m}
+
+    bench = {"runs": [record("A", 0, 30.0), record("A", 1, 40.0), record("A", 2, 50.0), record("A", 3, None)]}
+    (tmp_path / "bench.json").write_text(json.dumps(bench))
+    reference = load_reference(tmp_path / "bench.json")
+    assert reference == {"drl+pred": {"A": [30.0, 40.0, 50.0]}}  # the run that never reached the goal is left out
+
+    def flight(path_m):
+        return {
+            "plan": "A",
+            "planner": "drl",
+            "backends": {"predictor": "litert-cpu"},
+            "path_at_goal_m": path_m,
+            "collisions": 0,
+            "coverage": 0.96,
+            "exploration_s": 300.0,
+            "decision_latency_ms": None,
+            "decision_cpu_ms": None,
+            "peak_rss_mb": 240.0,
+            "cpu": {"daemon_percent_of_one_core": 12.0, "load_average_1min": 0.5},
+        }
+
+    table = summarize([flight(41.0), flight(60.0), flight(None)], reference)
+    row = table["A"]
+    assert row["bench_path_at_goal_m"] == 40.0 and row["flights_within_tolerance"] == 1
+    assert row["bench_runs"] == 3 and row["bench_runs_within_tolerance"] == 1  # 30 and 50 are 25 % off
+    assert table["all"]["flights_within_tolerance"] == 1 and table["all"]["bench_runs"] == 3
+    assert "| 1/3 / 1/3 |" in markdown_table(table)
