@@ -788,6 +788,23 @@ def test_the_acceptance_bench_flies_each_building_in_its_own_process(tmp_path):
     assert (out / "bench.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _acceptance_flight(planner: str, predictor: str | None, path_m: float | None) -> dict:
+    """A flight summary on building A with only the fields the acceptance table reads."""
+    return {
+        "plan": "A",
+        "planner": planner,
+        "backends": {"predictor": predictor},
+        "path_at_goal_m": path_m,
+        "collisions": 0,
+        "coverage": 0.96,
+        "exploration_s": 300.0,
+        "decision_latency_ms": None,
+        "decision_cpu_ms": None,
+        "peak_rss_mb": 240.0,
+        "cpu": {"daemon_percent_of_one_core": 12.0, "load_average_1min": 0.5},
+    }
+
+
 def test_the_acceptance_bench_compares_each_building_with_the_benchmark_method_it_flew(tmp_path):
     from edge_explorer.runtime.acceptance import load_reference, summarize
 
@@ -806,27 +823,12 @@ def test_the_acceptance_bench_compares_each_building_with_the_benchmark_method_i
     reference = load_reference(tmp_path / "bench.json")
     assert reference == {"frontier": {"A": [70.0]}, "frontier+pred": {"A": [60.0]}}
 
-    def flight(planner, predictor, path_m):
-        return {
-            "plan": "A",
-            "planner": planner,
-            "backends": {"predictor": predictor},
-            "path_at_goal_m": path_m,
-            "collisions": 0,
-            "coverage": 0.96,
-            "exploration_s": 300.0,
-            "decision_latency_ms": None,
-            "decision_cpu_ms": None,
-            "peak_rss_mb": 240.0,
-            "cpu": {"daemon_percent_of_one_core": 12.0, "load_average_1min": 0.5},
-        }
-
-    with_predictor = summarize([flight("frontier", "litert-cpu", 66.0)], reference)["A"]
+    with_predictor = summarize([_acceptance_flight("frontier", "litert-cpu", 66.0)], reference)["A"]
     assert with_predictor["bench_method"] == "frontier+pred" and with_predictor["path_ratio_to_bench"] == 1.1
     assert with_predictor["path_within_tolerance"]
-    observed_only = summarize([flight("frontier", None, 66.0)], reference)["A"]
+    observed_only = summarize([_acceptance_flight("frontier", None, 66.0)], reference)["A"]
     assert observed_only["bench_method"] == "frontier" and observed_only["bench_path_at_goal_m"] == 70.0
-    assert summarize([flight("drl", "litert-cpu", 50.0)], reference)["A"]["bench_path_at_goal_m"] is None
+    assert summarize([_acceptance_flight("drl", "litert-cpu", 50.0)], reference)["A"]["bench_path_at_goal_m"] is None
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(EdgeExplorerError, match="not a `bench explore` JSON"):
         load_reference(tmp_path / "bad.json")
@@ -843,22 +845,8 @@ def test_the_acceptance_bench_counts_single_flights_and_the_benchmarks_own_runs_
     reference = load_reference(tmp_path / "bench.json")
     assert reference == {"drl+pred": {"A": [30.0, 40.0, 50.0]}}  # the run that never reached the goal is left out
 
-    def flight(path_m):
-        return {
-            "plan": "A",
-            "planner": "drl",
-            "backends": {"predictor": "litert-cpu"},
-            "path_at_goal_m": path_m,
-            "collisions": 0,
-            "coverage": 0.96,
-            "exploration_s": 300.0,
-            "decision_latency_ms": None,
-            "decision_cpu_ms": None,
-            "peak_rss_mb": 240.0,
-            "cpu": {"daemon_percent_of_one_core": 12.0, "load_average_1min": 0.5},
-        }
-
-    table = summarize([flight(41.0), flight(60.0), flight(None)], reference)
+    flights = [_acceptance_flight("drl", "litert-cpu", path_m) for path_m in (41.0, 60.0, None)]
+    table = summarize(flights, reference)
     row = table["A"]
     assert row["bench_path_at_goal_m"] == 40.0 and row["flights_within_tolerance"] == 1
     assert row["bench_runs"] == 3 and row["bench_runs_within_tolerance"] == 1  # 30 and 50 are 25 % off
