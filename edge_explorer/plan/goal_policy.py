@@ -87,10 +87,14 @@ def expert_label(goal: Goal, pose: Pose, view: View, options: GoalOptions) -> in
     return int(row * GOAL_GRID_CELLS + col)
 
 
-def choose_cell(policy: GoalPolicy, decision: GoalDecision) -> int:
-    """The policy's best valid flat goal cell (the decision must have one)."""
-    scores = np.asarray(policy(decision.observation), dtype=np.float64).reshape(decision.options.mask.shape)
-    return int(np.argmax(np.where(decision.options.mask, scores, -np.inf)))
+def choose_cell(policy: GoalPolicy, decision: GoalDecision, cost_weight_per_m: float = 0.0) -> int:
+    """The best valid flat goal cell (the decision must have one): the policy's score less ``cost_weight_per_m`` ×
+    the path cost to the cell (the network sees the maps, not path lengths through them)."""
+    options = decision.options
+    scores = np.asarray(policy(decision.observation), dtype=np.float64).reshape(options.mask.shape)
+    if cost_weight_per_m:
+        scores = scores - cost_weight_per_m * np.where(options.mask, options.cost_m, 0.0)
+    return int(np.argmax(np.where(options.mask, scores, -np.inf)))
 
 
 def goal_at_cell(view: View, decision: GoalDecision, cell: int) -> Goal:
@@ -123,4 +127,5 @@ class GoalPolicyPlanner(PredictiveFrontier):
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
-        return goal_at_cell(view, decision, choose_cell(self.policy, decision))
+        cell = choose_cell(self.policy, decision, self.config.policy_cost_weight_per_m)
+        return goal_at_cell(view, decision, cell)

@@ -79,6 +79,9 @@ class PredictiveConfig:
     # a low-gain cluster nearer than this share of the best one's path is flown first (choose_cluster). Val plans,
     # 1 run, seed 0: 40-135 33.9 m with 0.3 vs 35.6 m without (0.2: 34.9, 0.4: 35.0, 0.5: 35.9); 136-231 33.7 vs 35.3.
     near_fallback_ratio: float = 0.3
+    # the learned planner (goal_policy.GoalPolicyPlanner) only: its goal is the valid cell of the highest
+    # score − weight × path cost (m). The network sees maps, not path lengths through them; 0 is the policy alone.
+    policy_cost_weight_per_m: float = 0.0
 
     def __post_init__(self) -> None:
         if (
@@ -87,10 +90,11 @@ class PredictiveConfig:
             or self.min_gain_cells < 0
             or self.gain_exponent < 0
             or self.near_fallback_ratio < 0
+            or self.policy_cost_weight_per_m < 0
         ):
             raise ValueError(
                 "cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent, "
-                "near_fallback_ratio ≥ 0"
+                "near_fallback_ratio, policy_cost_weight_per_m ≥ 0"
             )
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")
