@@ -127,5 +127,5 @@ class GoalPolicyPlanner(PredictiveFrontier):
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
-        cell = choose_cell(self.policy, decision, self.config.policy_cost_weight_per_m)
+        cell = choose_cell(self.policy, decision, self.predictive.policy_cost_weight_per_m)
         return goal_at_cell(view, decision, cell)

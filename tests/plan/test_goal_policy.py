@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions
-from edge_explorer.plan.goal_policy import GoalDecision, choose_cell
+from edge_explorer.plan.goal_policy import GoalDecision, GoalPolicyPlanner, choose_cell
 from edge_explorer.plan.predictive import PredictiveConfig
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.world.raster import rasterize
+from tests.conftest import two_room_plan
+from tests.plan.test_policy import nearest_first_scores
 
 G = GOAL_GRID_CELLS
 
@@ -44,3 +50,21 @@ def test_the_cost_weight_trades_score_for_path_length():
 def test_a_negative_cost_weight_is_refused():
     with pytest.raises(ValueError, match="policy_cost_weight_per_m"):
         PredictiveConfig(policy_cost_weight_per_m=-0.1)
+
+
+def test_the_planner_flies_a_cost_weighted_policy_to_full_coverage():
+    rooms = rasterize(two_room_plan(), 0.05)
+    env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=400))
+    planner = GoalPolicyPlanner(
+        lambda o: nearest_first_scores(), PredictiveConfig(policy_cost_weight_per_m=0.5), env.table
+    )
+    planner.reset()
+    _, info = env.reset(seed=7, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
+    previous, collisions = 0, 0
+    while info["coverage"] < 0.95 and info["steps"] < 400:
+        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
+        assert action is not None
+        _, _, _, _, info = env.step(action)
+        collisions += int(info["collided"])
+        previous = action
+    assert info["coverage"] >= 0.95 and collisions == 0
