@@ -59,7 +59,9 @@ class LabellingPlanner(PredictiveFrontier):
             self.records.append((o["high"], o["thres"], self.last_action, decision.options.flat_mask(), label))
         if self.policy is None or not decision.options.mask.any():
             return expert
-        return goal_at_cell(view, decision, choose_cell(self.policy, decision, self.predictive.policy_cost_weight_per_m))
+        return goal_at_cell(
+            view, decision, choose_cell(self.policy, decision, self.predictive.policy_cost_weight_per_m)
+        )
 
 
 @dataclass(frozen=True)

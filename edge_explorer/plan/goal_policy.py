@@ -87,14 +87,16 @@ def expert_label(goal: Goal, pose: Pose, view: View, options: GoalOptions) -> in
     return int(row * GOAL_GRID_CELLS + col)
 
 
+def weighted_scores(scores: np.ndarray, options: GoalOptions, cost_weight_per_m: float) -> np.ndarray:
+    """(G, G) scores the planner ranks goal cells by: the policy's ``scores`` less ``cost_weight_per_m`` × the path
+    cost to each cell (the network sees the maps, not path lengths through them), −inf where masked."""
+    scores = np.asarray(scores, dtype=np.float64).reshape(options.mask.shape)
+    return np.where(options.mask, scores - cost_weight_per_m * np.where(options.mask, options.cost_m, 0.0), -np.inf)
+
+
 def choose_cell(policy: GoalPolicy, decision: GoalDecision, cost_weight_per_m: float = 0.0) -> int:
-    """The best valid flat goal cell (the decision must have one): the policy's score less ``cost_weight_per_m`` ×
-    the path cost to the cell (the network sees the maps, not path lengths through them)."""
-    options = decision.options
-    scores = np.asarray(policy(decision.observation), dtype=np.float64).reshape(options.mask.shape)
-    if cost_weight_per_m:
-        scores = scores - cost_weight_per_m * np.where(options.mask, options.cost_m, 0.0)
-    return int(np.argmax(np.where(options.mask, scores, -np.inf)))
+    """The best valid flat goal cell by :func:`weighted_scores` (the decision must have one valid cell)."""
+    return int(np.argmax(weighted_scores(policy(decision.observation), decision.options, cost_weight_per_m)))
 
 
 def goal_at_cell(view: View, decision: GoalDecision, cell: int) -> Goal:

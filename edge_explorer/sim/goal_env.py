@@ -17,6 +17,8 @@ motion noise; a masked cell that is chosen anyway is replaced by the valid cell 
 
 When no goal cell is valid the predictive expert's fallbacks fly on (nearest observed frontier) without asking the
 agent. :meth:`GoalEnv.expert_action` is the expert's choice at the current decision (DAgger labels, evaluation).
+The agent's cell is flown as chosen; the deployed planner ranks the network's scores less a path-cost term
+(:func:`~edge_explorer.plan.goal_policy.weighted_scores`), whose costs :meth:`GoalEnv.action_costs_m` gives.
 """
 
 from __future__ import annotations
@@ -128,6 +130,12 @@ class GoalEnv(gym.Env):
         if self._pending is None:
             return np.zeros(NUM_GOALS, dtype=bool)
         return self._pending.decision.options.flat_mask()
+
+    def action_costs_m(self) -> np.ndarray:
+        """float64 (3481,): the path cost (m) to each goal cell now, inf where masked."""
+        if self._pending is None:
+            return np.full(NUM_GOALS, np.inf)
+        return self._pending.decision.options.cost_m.ravel()
 
     def expert_action(self) -> int | None:
         """The predictive expert's goal cell at this decision (``None`` if it would fly outside the goal grid)."""

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from edge_explorer.bench import explore
-from edge_explorer.plan.goal_policy import GoalPolicyPlanner
-from edge_explorer.plan.predictive import PredictiveFrontier
+from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS as G
+from edge_explorer.plan.goal_grid import GoalOptions
+from edge_explorer.plan.goal_policy import GoalPolicyPlanner, weighted_scores
+from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.runtime.daemon import Daemon, DaemonConfig
 from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
 from edge_explorer.sim.env import EnvConfig
@@ -39,7 +41,8 @@ def test_the_goal_env_and_the_benchmark_fly_the_same_policy_the_same_way(rooms):
     observation, info = env.reset(seed=7, options={"start_pose": START})
     decisions, done = 0, False
     while not done:
-        scores = np.where(env.action_masks(), policy(observation).ravel(), -np.inf)
+        options = GoalOptions(np.where(env.action_masks(), 0, -1).reshape(G, G), env.action_costs_m().reshape(G, G))
+        scores = weighted_scores(policy(observation), options, PredictiveConfig().policy_cost_weight_per_m)
         observation, _, terminated, truncated, info = env.step(int(np.argmax(scores)))
         decisions, done = decisions + 1, terminated or truncated
     assert record["ending"] == "goal" and terminated and decisions > 1
