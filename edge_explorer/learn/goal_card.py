@@ -31,6 +31,7 @@ from edge_explorer.learn.goal_net import GoalNet, load_goal_net
 from edge_explorer.learn.predictor_card import CARD_FORMAT
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
+from edge_explorer.plan.predictive import PredictiveConfig
 from edge_explorer.sim.env import EnvConfig
 
 WEIGHTS_NAME = "policy.safetensors"
@@ -199,7 +200,7 @@ def ship_goal_policy(
     env = EnvConfig()
     card = {
         "format": CARD_FORMAT,
-        "model": "learned goal policy (spatial action map over the ego goal grid, masked argmax)",
+        "model": "learned goal policy (spatial action map over the ego goal grid, masked argmax less path cost)",
         "weights": WEIGHTS_NAME,
         "sha256": weights_sha,
         "architecture": {
@@ -217,9 +218,11 @@ def ship_goal_policy(
         },
         "output": {
             "shape": [1, GOAL_GRID_CELLS, GOAL_GRID_CELLS],
-            "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the argmax "
-            "over the valid cells (plan.goal_policy.choose_cell), flown along observed free space",
+            "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the valid "
+            "cell of the highest logit − policy_cost_weight_per_m × path cost in m (plan.goal_policy.choose_cell), "
+            "flown along observed free space",
         },
+        "decision": {"policy_cost_weight_per_m": PredictiveConfig().policy_cost_weight_per_m},
         "reward": {
             "per_decision": "ω·ΔF1(M_thres) − metres flown − l·collisions (sim.goal_env)",
             "f1_weight_omega": env.f1_weight,
