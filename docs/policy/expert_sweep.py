@@ -11,7 +11,11 @@ plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.Predictive
     python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
 
 It prints the mean path at 95 % coverage, runs that reached it and collisions, and writes every run to
-``runs/expert_sweep/NAME.json``. Tune on val plans only: the test split and A-D are the acceptance.
+``runs/expert_sweep/NAME.json``. Two sweeps of the same plans pair run by run (mean ± s.e. of A − B)::
+
+    python docs/policy/expert_sweep.py --compare s15_lam0.15 s14_drl
+
+Tune on val plans only: the test split and A-D are the acceptance.
 """
 
 from __future__ import annotations
@@ -87,10 +91,28 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int]:
     return raster.name, at_goal, collisions
 
 
+def compare(name_a: str, name_b: str) -> str:
+    """Paired path at 95 % of two sweeps ``runs/expert_sweep/{A,B}.json`` over the plans both reached it on."""
+    a, b = ({r[0]: r for r in json.loads(_sweep_path(n).read_text())["runs"]} for n in (name_a, name_b))
+    plans = [p for p in a if p in b and a[p][1] is not None and b[p][1] is not None]
+    d = np.array([a[p][1] - b[p][1] for p in plans])
+    mean_a, mean_b = np.mean([a[p][1] for p in plans]), np.mean([b[p][1] for p in plans])
+    return (
+        f"{name_a} - {name_b}: {d.mean():+.2f} ± {d.std(ddof=1) / np.sqrt(len(d)):.2f} m over {len(d)} plans "
+        f"({mean_a:.2f} vs {mean_b:.2f} m), shorter on {(d < 0).sum()}, collisions {sum(r[2] for r in a.values())} "
+        f"vs {sum(r[2] for r in b.values())}"
+    )
+
+
+def _sweep_path(name: str) -> Path:
+    return Path("runs/expert_sweep") / f"{name}.json"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("overrides", nargs="*", help="PredictiveConfig fields, key=value")
-    parser.add_argument("--name", required=True)
+    parser.add_argument("--name", help="the sweep's name (its runs go to runs/expert_sweep/NAME.json)")
+    parser.add_argument("--compare", nargs=2, metavar=("A", "B"), help="print A − B of two finished sweeps and exit")
     parser.add_argument("--first", type=int, default=40, help="first val plan")
     parser.add_argument("--count", type=int, default=96)
     parser.add_argument("--planner", choices=("predfrontier", "frontier", "drl"), default="predfrontier")
@@ -99,6 +121,11 @@ def main() -> None:
     parser.add_argument("--plans", type=Path, default=Path("data/plans/val"), help="the val split's shards")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    if args.compare:
+        print(compare(*args.compare))
+        return
+    if not args.name:
+        raise SystemExit("--name is required to fly a sweep")
     overrides = parse_overrides(args.overrides)
     shards = sorted(args.plans.glob("*.jsonl.gz"))
     if not shards:
@@ -107,7 +134,7 @@ def main() -> None:
     with Pool(args.workers, initializer=_init, initargs=(args, overrides)) as pool:
         runs = list(tqdm(pool.imap(fly, plans), total=len(plans), desc=args.name))
     paths = [r[1] if r[1] is not None else float("nan") for r in runs]
-    out = Path("runs/expert_sweep") / f"{args.name}.json"
+    out = _sweep_path(args.name)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args) | {"plans": str(args.plans)}, "overrides": overrides, "runs": runs}))
     reached = sum(r[1] is not None for r in runs)
