@@ -200,7 +200,7 @@ def ship_goal_policy(
     env = EnvConfig()
     card = {
         "format": CARD_FORMAT,
-        "model": "learned goal policy (spatial action map over the ego goal grid, masked argmax less path cost)",
+        "model": "learned goal policy (spatial action map over the ego goal grid, masked argmax)",
         "weights": WEIGHTS_NAME,
         "sha256": weights_sha,
         "architecture": {
@@ -219,7 +219,8 @@ def ship_goal_policy(
         "output": {
             "shape": [1, GOAL_GRID_CELLS, GOAL_GRID_CELLS],
             "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the valid "
-            "cell of the highest logit − policy_cost_weight_per_m × path cost in m (plan.goal_policy.choose_cell), "
+            "cell of the highest logit − decision.policy_cost_weight_per_m × path cost in m "
+            "(plan.goal_policy.choose_cell), "
             "flown along observed free space",
         },
         "decision": {"policy_cost_weight_per_m": PredictiveConfig().policy_cost_weight_per_m},
