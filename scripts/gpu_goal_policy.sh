@@ -4,10 +4,12 @@
 #      (`train goal-demos`, resumable shards of 10 plans) for DEMO_S seconds,
 #   2. a short probe measures behaviour-cloning steps/s on this GPU (demonstrations on the device, bf16 autocast),
 #   3. behaviour cloning (`train goal-bc --device cuda`) for BC_S seconds, its cosine schedule sized to end in them,
-#   4. one DAgger round: the cloned policy flies further train plans while the expert labels every decision, for
-#      DAGGER_S seconds (0 = none: then the box ends after the cloning),
-#   5. a fine-tune from the clone on the expert's and the DAgger decisions for the rest of the box,
+#   4. one DAgger round: DAGGER_POLICY (default the clone; `models/policy` = the shipped int8 policy) flies further
+#      train plans while the expert labels every decision, for DAGGER_S seconds (0 = none: the box ends after cloning),
+#   5. a fine-tune from INIT (default the clone) on the expert's and the DAgger decisions for the rest of the box,
 #   6. the runs, the log and as many demonstration shards as $OUT takes back (45 MiB) are packed into $OUT.
+# DEMO_S=0 skips steps 1-3: DAgger only, e.g. the shipped policy's own rollouts fine-tuning its own weights:
+#   DEMO_S=0 DAGGER_S=300 DAGGER_POLICY=models/policy INIT=models/policy/policy.safetensors bash scripts/gpu_goal_policy.sh
 # Needs VAL (made on the host with the same predictor: `train goal-demos --out data/goal_demos_h200/val --split val
 # --count 40 --predictor runs/pred_h200`) and the predictor folder, both carried; it makes data/plans itself.
 # Wheels the machine lacks (ai-edge-litert for the int8 TFLite predictor, gymnasium) travel in .whl_goal/.
@@ -25,6 +27,8 @@ DEVICE=${DEVICE:-cuda}
 WORKERS=${WORKERS:-$(nproc)}
 DAGGER_FIRST=${DAGGER_FIRST:-20000}  # DAgger flies plans the expert's round never reaches in one box
 WHEELS=${WHEELS:-.whl_goal}
+DAGGER_POLICY=${DAGGER_POLICY:-$RUNS/bc/best.safetensors}
+INIT=${INIT:-$RUNS/bc/best.safetensors}
 OUT=${OUT:-runs/gpu_out}
 T0=$(date +%s)
 left() { echo $((BOX_S - ($(date +%s) - T0))); }
@@ -56,9 +60,11 @@ steps_for() { python3 -c "print(max(100, int($RATE * $1 * 0.9) // 50 * 50))"; }
 echo "== 0. plans $(date -u +%T)"  # deterministic: the same 50,000 plans as on the host
 [ -f data/plans/manifest.json ] || $EE plans generate --count 50000 --seed 0 --out data/plans --workers "$WORKERS"
 
+if [ "$DEMO_S" -gt 0 ]; then
 echo "== 1. expert demonstrations ($DEMO_S s, $WORKERS workers) $(date -u +%T)"
 demos_for "$DEMO_S" --out "$DEMOS/train" --split train --count 20000 --predictor "$PREDICTOR" --workers "$WORKERS"
 echo "finished expert shards: $(ls "$DEMOS"/train/*.json | wc -l)"
+fi
 
 echo "== 2. probe $(date -u +%T)"
 rm -rf "$RUNS/probe"
@@ -67,21 +73,24 @@ $EE train goal-bc --train-demos "$VAL" --val-demos "$VAL" --steps 100000 --batch
 RATE=$(python3 -c "import json; s = json.load(open('$RUNS/probe/state.json')); print(s['step'] / s['wall_s'])")
 echo "steps/s: $RATE"
 
+if [ "$DEMO_S" -gt 0 ]; then
 echo "== 3. behaviour cloning ($BC_S s) $(date -u +%T)"
 rm -rf "$RUNS/bc"
 $EE train goal-bc --train-demos "$DEMOS/train" --val-demos "$VAL" --steps "$(steps_for "$BC_S")" \
     --batch-size "$BATCH" --device "$DEVICE" --max-minutes "$(python3 -c "print($BC_S / 60)")" --out "$RUNS/bc"
+fi
 
-if [ "$DAGGER_S" -gt 0 ] && [ -f "$RUNS/bc/best.safetensors" ] && [ "$(left)" -gt $((DAGGER_S + 90)) ]; then
+if [ "$DAGGER_S" -gt 0 ] && [ -e "$DAGGER_POLICY" ] && [ -f "$INIT" ] && [ "$(left)" -gt $((DAGGER_S + 90)) ]; then
     echo "== 4. DAgger round ($DAGGER_S s) $(date -u +%T)"
     demos_for "$DAGGER_S" --out "$DEMOS/dagger1" --split train --first "$DAGGER_FIRST" --count 20000 \
-        --predictor "$PREDICTOR" --policy "$RUNS/bc/best.safetensors" --workers "$WORKERS"
+        --predictor "$PREDICTOR" --policy "$DAGGER_POLICY" --workers "$WORKERS"
     echo "finished DAgger shards: $(ls "$DEMOS"/dagger1/*.json | wc -l)"
     FT_S=$(( $(left) - 60 ))
     echo "== 5. fine-tune on expert + DAgger ($FT_S s) $(date -u +%T)"
     rm -rf "$RUNS/dagger1"
-    $EE train goal-bc --train-demos "$DEMOS/train,$DEMOS/dagger1" --val-demos "$VAL" \
-        --init "$RUNS/bc/best.safetensors" --lr 3e-4 --steps "$(steps_for "$FT_S")" --batch-size "$BATCH" \
+    TRAIN=$DEMOS/dagger1; [ -d "$DEMOS/train" ] && TRAIN=$DEMOS/train,$TRAIN
+    $EE train goal-bc --train-demos "$TRAIN" --val-demos "$VAL" \
+        --init "$INIT" --lr 3e-4 --steps "$(steps_for "$FT_S")" --batch-size "$BATCH" \
         --device "$DEVICE" --max-minutes "$(python3 -c "print($FT_S / 60)")" --out "$RUNS/dagger1"
 fi
 

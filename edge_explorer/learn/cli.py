@@ -101,7 +101,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     demos.add_argument("--first", type=int, default=0, help="first plan index of the split (default 0)")
     demos.add_argument("--count", type=positive_int, required=True, help="plans to fly")
     demos.add_argument("--predictor", default="models/predictor", help="predictor reference ('' = none: phase 1)")
-    demos.add_argument("--policy", default=None, help="a goal policy .safetensors to fly instead of the expert")
+    demos.add_argument(
+        "--policy",
+        default=None,
+        help="a goal policy to fly instead of the expert (DAgger): a .safetensors or an exported folder "
+        "such as models/policy",
+    )
     demos.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
     demos.set_defaults(func=_goal_demos)
 

@@ -178,19 +178,18 @@ def split_rasters(
 def _run_job(job: DemoJob) -> dict:
     import cv2
 
-    from edge_explorer.bench.explore import load_predictor
+    from edge_explorer.bench.explore import load_policy, load_predictor
 
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
     predictor = load_predictor(job.predictor) if job.predictor else None
     policy = None
     if job.policy:
-        import torch
+        if job.policy.endswith(".safetensors"):
+            import torch
 
-        from edge_explorer.learn.goal_net import TorchGoalPolicy
-
-        torch.set_num_threads(1)  # one process per core: torch's own threads would oversubscribe them
-        policy = TorchGoalPolicy.from_file(job.policy)
+            torch.set_num_threads(1)  # one process per core: torch's own threads would oversubscribe them
+        policy = load_policy(job.policy)  # torch weights, or an exported folder (int8 TFLite: faster rollouts)
     records = []
     for k, raster in enumerate(split_rasters(job.plans, job.split, job.first, job.stop)):
         seed = int(np.random.SeedSequence([job.config.seed, job.first + k]).generate_state(1)[0])
