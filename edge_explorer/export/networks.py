@@ -309,7 +309,8 @@ def predictor_network(module: torch.nn.Module, checkpoint: Path | None = None, e
                 "fake_quant_error": {label: round(error, 5) for label, error in errors.items()},
                 "calibration_observations": len(feeds),
                 "what": "edge_explorer.export.unet_equalization (same function, rescaled ReLU channels; '+ grid': "
-                "interior values of unobserved areas aligned to the int8 grid)",
+                "interior values of unobserved areas aligned to the int8 grid, computed with the weights rounded; "
+                "'+ int8 grid': with the upstream tensors rounded too)",
             }
             network = predictor_network(chosen, checkpoint, equalize=False)
             meta = {**network.metadata, "edge_explorer.equalization": json.dumps(record)}

@@ -134,7 +134,7 @@ def equalize_unet(net: UNet, feeds: Sequence[np.ndarray], strength: float = 1.0,
 
 
 @torch.no_grad()
-def align_unknown_to_grid(net: UNet, feeds: Sequence[np.ndarray]) -> UNet:
+def align_unknown_to_grid(net: UNet, feeds: Sequence[np.ndarray], int8_upstream: bool = False) -> UNet:
     """A copy of the fused ``net`` whose ReLU tensors hold the value they take deep inside an unobserved region
     exactly on their int8 grid — the same function, channels rescaled as in :func:`equalize_unet`.
 
@@ -145,16 +145,20 @@ def align_unknown_to_grid(net: UNet, feeds: Sequence[np.ndarray]) -> UNet:
     scaled by ``n·step / v_c`` with ``n = round(v_c / step)`` (at least 1), ``step = top / 255`` the tensor's int8
     step over ``feeds`` (asymmetric int8 of a ReLU tensor: 0 and every multiple of ``step`` are exact), never past
     the tensor's top; the channel that sets the top keeps it. Tensors go in topological order and each interior value
-    is computed with the weights rounded per output channel to int8, as the export will round them.
+    is computed with the weights rounded per output channel to int8, as the export will round them — and with
+    ``int8_upstream`` every tensor upstream rounded to its grid too, as the int8 network computes it (a channel left
+    off its grid, e.g. the one that sets the top, moves the next tensor's interior; session 16's H100 weights need
+    this, the shipped session-13 weights align better without it: the export tries both).
     """
     net = copy.deepcopy(net).eval()
     topology = _Topology(net)
     maxima = topology.channel_maxima(feeds)
     shape = np.shape(feeds[0])[-3:]
-    for name in topology.order:
-        r, top = maxima[name], topology.top(name, maxima)
-        step = top / 255.0
-        interior = _Topology(_rounded_weights(net)).outputs(torch.zeros(1, *shape))[name][0]
+    steps = {name: float(topology.top(name, maxima)) / 255.0 for name in topology.order}  # no rescale moves a top
+    for k, name in enumerate(topology.order):
+        r, top, step = maxima[name], topology.top(name, maxima), steps[name]
+        upstream = {done: steps[done] for done in topology.order[:k]} if int8_upstream else {}
+        interior = _int8_outputs(net, upstream, torch.zeros(1, *shape))[name][0]
         value = interior[:, interior.shape[-2] // 2, interior.shape[-1] // 2]
         n = torch.round(value / step).clamp_min(1.0)
         n = torch.where(r * n * step / value.clamp_min(1e-12) > top, torch.floor(value / step), n)
@@ -163,6 +167,22 @@ def align_unknown_to_grid(net: UNet, feeds: Sequence[np.ndarray]) -> UNet:
         topology.rescale(name, scale)
         maxima[name] = r * scale
     return net
+
+
+def _int8_outputs(net: UNet, steps: dict[str, float], net_input: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Every ReLU block's output with the weights rounded as the export rounds them and the blocks named in
+    ``steps`` rounded to their int8 grid (0..255 steps): what the int8 network computes upstream of the others."""
+    topology = _Topology(_rounded_weights(net))
+
+    def rounded(step: float):  # noqa: ANN202 - a forward hook
+        return lambda _m, _i, o: torch.clamp(torch.round(o / step), 0, 255) * step
+
+    hooks = [topology.blocks[name].register_forward_hook(rounded(step)) for name, step in steps.items()]
+    try:
+        return topology.outputs(net_input)
+    finally:
+        for hook in hooks:
+            hook.remove()
 
 
 def _rounded_weights(net: nn.Module) -> nn.Module:
@@ -206,26 +226,37 @@ def fake_quant_error(net: UNet, feeds: Sequence[np.ndarray]) -> float:
     return float((quantized - reference).abs()[unobserved].mean())
 
 
-def candidate_label(strength: float, aligned: bool) -> str:
+# How a candidate's unobserved interiors are aligned (:func:`align_unknown_to_grid`): not at all, with the weights
+# rounded, or with the weights and the upstream tensors rounded.
+ALIGNMENTS = ("", "grid", "int8 grid")
+
+
+def candidate_label(strength: float, alignment: str) -> str:
     """How :func:`choose_equalization` names a candidate in its errors and in the export's metadata."""
-    return f"strength {strength:g}" + (" + grid" if aligned else "")
+    return f"strength {strength:g}" + (f" + {alignment}" if alignment else "")
 
 
 def choose_equalization(
     net: UNet,
     feeds: Sequence[np.ndarray],
     strengths: Sequence[float] = CANDIDATE_STRENGTHS,
-    align: Sequence[bool] = (False, True),
+    alignments: Sequence[str] = ALIGNMENTS,
 ) -> tuple[UNet, str, dict[str, float]]:
     """(network, label, {label: fake_quant_error}) for the candidate with the least error on ``feeds`` —
     calibration observations only, never the gates' held-back ones. A candidate is an equalization strength
-    (0: ``net`` itself), optionally followed by :func:`align_unknown_to_grid`; labels by :func:`candidate_label`."""
+    (0: ``net`` itself), optionally followed by :func:`align_unknown_to_grid` in one of :data:`ALIGNMENTS`; labels
+    by :func:`candidate_label`."""
     errors, nets = {}, {}
     for strength in strengths:
         equalized = net if strength == 0 else equalize_unet(net, feeds, strength)
-        for aligned in align:
-            label = candidate_label(strength, aligned)
-            nets[label] = align_unknown_to_grid(equalized, feeds) if aligned else equalized
+        for alignment in alignments:
+            label = candidate_label(strength, alignment)
+            if alignment not in ALIGNMENTS:
+                raise ValueError(f"alignment {alignment!r} is not one of {ALIGNMENTS}")
+            if alignment:
+                nets[label] = align_unknown_to_grid(equalized, feeds, int8_upstream=alignment == "int8 grid")
+            else:
+                nets[label] = equalized
             errors[label] = fake_quant_error(nets[label], feeds)
     best = min(errors, key=errors.__getitem__)
     return nets[best], best, errors
