@@ -4,13 +4,24 @@
 #   2. a short probe measures training steps/s on this GPU with DataLoader workers and bfloat16 autocast (skipped when
 #      RATE gives the steps/s already measured on this kind of machine: an H200 ran 32-38),
 #   3. the U-Net trains for the rest of the box with total_steps set from that rate (the cosine schedule ends in it),
-#   4. the run folder, the recorded train shards and the log are packed into $OUT (at most 16 MiB a file).
+#   4. the run folder, the train shards recorded in this box and the log are packed into $OUT (at most 16 MiB a file).
+# DATA_S=0 skips step 1; TRAIN=0 ends the box after it. The 64 MiB a call may carry does not hold the repository, the
+# OR-Tools wheel (.whl, needed to record) and the samples together, so a lease can run in two calls (session 16):
+#   1. record: carry .whl and runs/carry_p3 (data/predictor3's manifest, val/ and the train shards' .json markers only:
+#      `mkdir -p runs/carry_p3/train && cp -r data/predictor3/{manifest.json,val} runs/carry_p3/ &&
+#      cp data/predictor3/train/*.json runs/carry_p3/train/`), so the machine records only shards the host lacks:
+#      CARRIED=runs/carry_p3 TRAIN=0 DATA_S=480 bash scripts/gpu_predictor.sh; unpack $OUT/train_shards.tar.* into
+#      data/predictor3/train on the host;
+#   2. train, within 30 s (a warm machine keeps data/plans): carry data/predictor3 alone,
+#      DATA_S=0 RATE=33 CONFIG=… bash scripts/gpu_predictor.sh.
 # Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
 # --val-plans 300 --noise-free-fraction 0.3`, the same samples the machine would make); it makes data/plans itself.
 # Wheels the machine lacks (OR-Tools for the FUEL-style explorer) travel in .whl/.
 set -uo pipefail
 BOX_S=${BOX_S:-540}
 DATA_S=${DATA_S:-300}
+TRAIN=${TRAIN:-1}
+CARRIED=${CARRIED:-}  # a folder copied into data/predictor3 first (the markers-only carry of a recording call)
 DEVICE=${DEVICE:-cuda}
 PROBE_STEPS=${PROBE_STEPS:-150}
 LOADERS=${LOADERS:-12}
@@ -33,6 +44,9 @@ nvidia-smi -L || true; nproc; python3 -c "import torch, numpy, numba; print(torc
 
 echo "== 0. plans $(date -u +%T)"  # deterministic: the same 50,000 plans as on the host, in seconds on 16 cores
 [ -f data/plans/manifest.json ] || $EE plans generate --count 50000 --seed 0 --out data/plans --workers "$(nproc)"
+touch /tmp/box_start
+if [ -n "$CARRIED" ]; then mkdir -p data/predictor3 && cp -r "$CARRIED"/. data/predictor3/; fi
+if [ "$DATA_S" -gt 0 ]; then
 echo "== 1. samples ($DATA_S s, $(nproc) workers) $(date -u +%T)"
 # its own process group, so the box ends the pool's workers too (finished shards have their marker; the rest is
 # ignored by the loader and redone by a resume)
@@ -42,7 +56,9 @@ DATA_PID=$!
 for _ in $(seq "$DATA_S"); do kill -0 "$DATA_PID" 2>/dev/null || break; sleep 1; done
 kill -TERM -- -"$DATA_PID" 2>/dev/null; wait "$DATA_PID" 2>/dev/null
 echo "finished train shards: $(ls data/predictor3/train/*.json | wc -l)"
+fi
 
+if [ "$TRAIN" = 1 ]; then
 if [ -n "${RATE:-}" ]; then echo "== 2. probe skipped: RATE=$RATE steps/s given"; else
 echo "== 2. probe $(date -u +%T)"
 python3 - "$CONFIG" <<'PY'
@@ -80,8 +96,13 @@ rm -rf "$RUN"
 $EE train predictor --config /tmp/gpu.toml --out "$RUN" --device "$DEVICE" --loader-workers "$LOADERS" \
     --max-minutes "$(python3 -c "print(max(0.2, ($(left) - 40) / 60))")"
 
+fi  # TRAIN
+
 echo "== 4. pack $(date -u +%T)"
 nvidia-smi --query-gpu=name,memory.used --format=csv || true
-tar czf "$OUT/run.tar.gz" "$RUN" $(ls runs/probe/state.json runs/probe/train_log.csv 2>/dev/null)
-tar cf - data/predictor3/train data/predictor3/manifest.json | split -b 15M - "$OUT/train_shards.tar."
+[ "$TRAIN" = 1 ] && tar czf "$OUT/run.tar.gz" "$RUN" $(ls runs/probe/state.json runs/probe/train_log.csv 2>/dev/null)
+# only the shards this box finished (an .npz with its .json marker), to be unpacked in data/predictor3/train
+NEW=$(cd data/predictor3/train && for f in $(find . -name 'shard-*.npz' -newer /tmp/box_start | sort); do
+    [ -f "${f%.npz}.json" ] && echo "$f ${f%.npz}.json"; done)
+[ -n "$NEW" ] && (cd data/predictor3/train && tar cf - $NEW) | split -b 15M - "$OUT/train_shards.tar."
 ls -la "$OUT"

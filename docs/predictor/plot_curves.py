@@ -5,7 +5,8 @@ samples and wall time); a stretch's logs are ``PREFIXval_log.csv`` and ``PREFIXt
 
     python docs/predictor/plot_curves.py docs/predictor/gpu_h100/curves.png H100 \\
         "stretch 3: from scratch=docs/predictor/gpu_h100/stretch3/" \\
-        "stretch 4: fine-tune of 3 (shipped: best val, step 3,500)=docs/predictor/gpu_h100/stretch4/"
+        "stretch 4: fine-tune of 3 (best val, step 3,500)=docs/predictor/gpu_h100/stretch4/" \\
+        "stretch 5: fine-tune of 4 on 8,900 plans (shipped: best val, step 5,600)=docs/predictor/gpu_h100/stretch5/"
     python docs/predictor/plot_curves.py docs/predictor/gpu_h200/curves.png H200 \\
         "stretch 1=docs/predictor/gpu_h200/" "stretch 2: fine-tune of 1 (int8 gate failed)=docs/predictor/gpu_h200/ft_"
 """
