@@ -5,8 +5,7 @@ Each run is the benchmark's run (``bench explore``'s start pose, noise seed and 
 correct coverage, 1500 steps) on one val plan, so the figures pair with ``bench explore --plans`` on the same
 plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.PredictiveConfig`; with a ``follow.`` prefix
 fields of the path follower's :class:`~edge_explorer.plan.follow.FollowConfig` (every planner flies it), with a
-``look.`` prefix of :class:`~edge_explorer.plan.look.LookConfig` (the expert looks by default, the learned planner does
-not: ``look.enabled=True`` turns it on)::
+``look.`` prefix of :class:`~edge_explorer.plan.look.LookConfig` (the expert and the learned planner)::
 
     python docs/policy/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
     python docs/policy/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
@@ -37,8 +36,8 @@ from tqdm import tqdm
 
 from edge_explorer.bench import explore as bench
 from edge_explorer.plan.follow import FollowConfig
-from edge_explorer.plan.frontier import NearestFrontier
-from edge_explorer.plan.goal_policy import POLICY_LOOP, GoalPolicyPlanner
+from edge_explorer.plan.frontier import NearestFrontier, PlannerConfig
+from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.look import LookConfig
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
@@ -76,20 +75,15 @@ def parse_overrides(pairs: list[str]) -> dict:
     return out
 
 
-_EXPERT = PredictiveConfig()
-
-
-def predictive_config(overrides: dict, base: PredictiveConfig = _EXPERT) -> PredictiveConfig:
-    """The planner settings of a sweep: ``base`` with ``overrides`` (as :func:`parse_overrides` returns them)."""
+def predictive_config(overrides: dict) -> PredictiveConfig:
+    """The planner settings of a sweep: the defaults with ``overrides`` (as :func:`parse_overrides` returns them)."""
     rest = {k: v for k, v in overrides.items() if k not in _NESTED}
-    follow = dataclasses.replace(base.planner.follow, **overrides.get("follow", {}))
-    look = dataclasses.replace(base.look, **overrides.get("look", {}))
-    return dataclasses.replace(base, planner=dataclasses.replace(base.planner, follow=follow), look=look, **rest)
+    planner = PlannerConfig(follow=FollowConfig(**overrides.get("follow", {})))
+    return PredictiveConfig(planner=planner, look=LookConfig(**overrides.get("look", {})), **rest)
 
 
 def _init(args: argparse.Namespace, overrides: dict) -> None:
-    base = POLICY_LOOP if args.planner == "drl" else _EXPERT
-    _WORKER.update(args=args, config=predictive_config(overrides, base), predictor=bench.load_predictor(args.predictor))
+    _WORKER.update(args=args, config=predictive_config(overrides), predictor=bench.load_predictor(args.predictor))
     if args.planner == "drl":
         _WORKER["policy"] = bench.load_policy(args.policy)
 

@@ -223,10 +223,7 @@ def ship_goal_policy(
             "(plan.goal_policy.choose_cell), "
             "flown along observed free space",
         },
-        "decision": {
-            "policy_cost_weight_per_m": PredictiveConfig().policy_cost_weight_per_m,
-            "look": asdict(PredictiveConfig().look),  # the turn in place a new goal may start with
-        },
+        "decision": {"policy_cost_weight_per_m": PredictiveConfig().policy_cost_weight_per_m},
         "reward": {
             "per_decision": "ω·ΔF1(M_thres) − metres flown − l·collisions (sim.goal_env)",
             "f1_weight_omega": env.f1_weight,

@@ -29,14 +29,7 @@ from edge_explorer.mapping.ego import OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import (
-    POLICY_LOOP,
-    GoalPolicy,
-    choose_cell,
-    expert_label,
-    goal_at_cell,
-    goal_decision,
-)
+from edge_explorer.plan.goal_policy import GoalPolicy, choose_cell, expert_label, goal_at_cell, goal_decision
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.dynamics import ActionTable
@@ -52,7 +45,7 @@ class LabellingPlanner(PredictiveFrontier):
     """The expert's loop; the expert's or a policy's goals; every decision recorded with the expert's label."""
 
     def __init__(self, policy: GoalPolicy | None = None, table: ActionTable | None = None) -> None:
-        super().__init__(POLICY_LOOP, table)  # the loop the policy flies, whoever chooses the goals
+        super().__init__(table=table)
         self.policy = policy
         self.records: list[Record] = []
 

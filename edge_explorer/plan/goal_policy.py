@@ -29,16 +29,12 @@ from edge_explorer.mapping.ego import observation_from_maps
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View, goal_candidates
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions, ego_goal_cells, goal_options
-from edge_explorer.plan.look import LookConfig
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.sim.dynamics import ActionTable
 
 GoalPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]  # observation → (59, 59) goal-cell scores
 _TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
-# The loop the goal policy was cloned in and is measured in: the expert's, without the look before leaving (a turn in
-# place when a goal starts). The look shortened the expert's val flights (docs/policy/goal_policy.md, session 17) but
-# not the policy's (+0.37 ± 0.69 m on val 40-231, 2 collisions vs 0), whose demonstrations were flown without it.
-POLICY_LOOP = PredictiveConfig(look=LookConfig(enabled=False))
+_EXPERT_DEFAULTS = PredictiveConfig()
 
 
 @dataclass(frozen=True)
@@ -123,7 +119,7 @@ class GoalPolicyPlanner(PredictiveFrontier):
     """The learned goal planner: the expert's view and loop, the policy's choice of goal."""
 
     def __init__(
-        self, policy: GoalPolicy, config: PredictiveConfig = POLICY_LOOP, table: ActionTable | None = None
+        self, policy: GoalPolicy, config: PredictiveConfig = _EXPERT_DEFAULTS, table: ActionTable | None = None
     ) -> None:
         super().__init__(config, table)
         self.policy = policy

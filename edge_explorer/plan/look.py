@@ -25,7 +25,7 @@ class LookConfig:
     """When a new goal starts with a turn in place (see the module docstring)."""
 
     enabled: bool = True
-    min_gain_cells: int = 10  # the turn must show this many more unknown 0.20 m cells (0.4 m²) than flying on would
+    min_gain_cells: int = 30  # the turn must show this many more unknown 0.20 m cells (1.2 m²) than flying on would
     max_steps: int = 6  # turn steps at most (6 × 30° = half a turn), then fly the goal whatever the heading
     headings: int = 12  # candidate headings, evenly spaced
 

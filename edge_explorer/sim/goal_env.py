@@ -33,7 +33,7 @@ from gymnasium import spaces
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import POLICY_LOOP, GoalDecision, expert_label, goal_at_cell, goal_decision
+from edge_explorer.plan.goal_policy import GoalDecision, expert_label, goal_at_cell, goal_decision
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster
@@ -53,7 +53,7 @@ class _AgentGoals(PredictiveFrontier):
     """The expert's loop with the agent's goals: a pending goal is flown; without one, the loop stops to ask."""
 
     def __init__(self, env: ExplorationEnv) -> None:
-        super().__init__(POLICY_LOOP, env.table)
+        super().__init__(table=env.table)
         self.pending: Goal | None = None
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:

@@ -85,21 +85,3 @@ def test_a_new_goal_starts_with_a_turn_in_place_towards_the_unknown_space_behind
         turned = (turned[0], turned[1], turned[2] + (math.pi / 6 if action == Action.TURN_LEFT else -math.pi / 6))
     assert min(math.cos(h) for h in headings) < -0.5  # it faced the unseen west …
     assert action in _FLYING  # … then flew the goal
-
-
-def test_the_expert_looks_and_the_loops_that_fly_or_train_the_goal_policy_do_not():
-    """The policy was cloned in a loop without the look; the loop that flies it (bench, daemon), the demonstrations'
-    and PPO's environment keep it that way (goal_policy.POLICY_LOOP)."""
-    from edge_explorer.learn.goal_demos import LabellingPlanner
-    from edge_explorer.plan.goal_policy import POLICY_LOOP, GoalPolicyPlanner
-    from edge_explorer.sim.env import EnvConfig
-    from edge_explorer.sim.goal_env import GoalEnv
-
-    assert PredictiveFrontier().predictive.look.enabled
-    assert not POLICY_LOOP.look.enabled
-    assert GoalPolicyPlanner(lambda observation: np.zeros((59, 59))).predictive == POLICY_LOOP
-    assert LabellingPlanner().predictive == POLICY_LOOP
-    rooms = rasterize(two_room_plan(), 0.05)
-    env = GoalEnv([rooms], EnvConfig(max_steps=50))
-    env.reset(seed=0)
-    assert env._planner is not None and env._planner.predictive == POLICY_LOOP

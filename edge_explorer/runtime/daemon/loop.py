@@ -7,14 +7,13 @@ watchdog and frame ingestion (:mod:`.watchdog`), the decision pipeline (:mod:`.d
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from collections.abc import Callable
 
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.plan.frontier import GoalPlanner, NearestFrontier, PlannerConfig
-from edge_explorer.plan.goal_policy import POLICY_LOOP, GoalPolicyPlanner
+from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import PredictorRuntime
@@ -76,7 +75,7 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
         planner_config = PlannerConfig(follow=self.config.follow)
         if self.policy is not None:
             scores = TimedScores(self.policy, self.timings)
-            return GoalPolicyPlanner(scores, dataclasses.replace(POLICY_LOOP, planner=planner_config), self.table)
+            return GoalPolicyPlanner(scores, PredictiveConfig(planner=planner_config), self.table)
         if self.config.exploration_planner == "predfrontier":
             return PredictiveFrontier(PredictiveConfig(planner=planner_config), self.table)
         return NearestFrontier(planner_config, self.table)
