@@ -29,9 +29,6 @@ A target the prediction ends while it is still unobserved is *committed*: it sta
 observed, so flickering predictions cannot make the vehicle alternate between two targets (seen on one test plan:
 1,200 steps between two cells, each predicted away while the vehicle flew to the other).
 
-When a new goal starts, the vehicle first turns in place towards unknown space it can already see from where it is,
-if that shows enough more than flying off would (:mod:`~edge_explorer.plan.look`): a turn costs almost no path.
-
 Paths, following, replanning and failure handling are the shared :class:`~edge_explorer.plan.frontier.GoalPlanner`
 loop: paths run only through *observed* free space at the robot's clearance, so a prediction never makes a cell
 flyable, and the goal is replanned when most of its cluster stops being a fused frontier (seen or predicted).
@@ -46,7 +43,7 @@ import cv2
 import numpy as np
 
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.plan.follow import Pose, choose_action
+from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import (
     Goal,
     GoalPlanner,
@@ -58,7 +55,6 @@ from edge_explorer.plan.frontier import (
     goal_candidates,
     nearest_frontier_goal,
 )
-from edge_explorer.plan.look import LookConfig, departure_heading_rad, look_heading
 from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.sensor import SensorConfig
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
@@ -88,7 +84,6 @@ class PredictiveConfig:
     # (40-135: 33.45 vs 34.13 m; 136-231: 33.06 vs 34.78) and test/A-D a little, but lengthened the real plans by
     # +3.0 ± 1.3 m with a collision (docs/policy/goal_policy.md, session 15), so the policy flies alone.
     policy_cost_weight_per_m: float = 0.0
-    look: LookConfig = LookConfig()  # a new goal may start with a turn in place towards visible unknown space
 
     def __post_init__(self) -> None:
         if (
@@ -185,8 +180,6 @@ class PredictiveFrontier(GoalPlanner):
         self._fused: np.ndarray | None = None  # this step's fused 0.20 m map
         self._committed: np.ndarray | None = None  # bool, 0.20 m: targets the prediction once ended unobserved
         self.last_action = 0  # the motion the vehicle carries into this step (a learned planner observes it)
-        self._look_yaw: float | None = None  # the heading of the turn in place under way, if any …
-        self._look_steps_left = 0  # … and the turn steps it may still take
 
     def act(
         self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
@@ -202,46 +195,6 @@ class PredictiveFrontier(GoalPlanner):
     def reset(self) -> None:
         super().reset()
         self._committed = None
-        self._look_yaw = None
-
-    def _act(self, view: View, pose: Pose, previous_action: int) -> int | None:
-        """The shared loop's action, except while a look (a turn in place when a new goal starts) is under way."""
-        if self._look_yaw is not None:
-            action = self._look_step(view, pose, previous_action)
-            if action is not None:
-                return action
-        replans = self.replans
-        action = super()._act(view, pose, previous_action)
-        if action is None or self._goal is None or self.replans == replans or self._goal.retreat:
-            return action
-        self._look_yaw = self._look_heading(view, pose, self._goal)
-        self._look_steps_left = self.predictive.look.max_steps
-        look = self._look_step(view, pose, previous_action) if self._look_yaw is not None else None
-        return action if look is None else look
-
-    def _look_heading(self, view: View, pose: Pose, goal: Goal) -> float | None:
-        """Where to turn before flying ``goal`` (:func:`~edge_explorer.plan.look.look_heading`), or ``None``."""
-        if not self.predictive.look.enabled:
-            return None
-        fused = self._fused if self._fused is not None else view.maps.low
-        here = np.array(pose[:2], dtype=np.float64)
-        sensor = self.predictive.sensor
-        seen = visible_unknown(here, fused == UNKNOWN, fused == OCCUPIED, view.maps.low_grid, sensor.range_m)
-        away = departure_heading_rad(goal.path_xy_m, here, self.config.follow.lookahead_m, goal.yaw_rad)
-        return look_heading(seen, here, away, sensor.fov_rad, self.predictive.look)
-
-    def _look_step(self, view: View, pose: Pose, previous_action: int) -> int | None:
-        """The next turn towards the look's heading, or ``None`` (look over) once faced or out of steps."""
-        assert self._look_yaw is not None
-        action = None
-        if self._look_steps_left > 0:
-            here = np.array([pose[:2]])
-            follow = self.config.follow
-            action = choose_action(self.table, pose, previous_action, here, view.free, follow, self._look_yaw)
-            self._look_steps_left -= 1
-        if action is None:
-            self._look_yaw = None
-        return action
 
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """The fused frontier plus the committed targets still on the observed frontier (less the dropped
