@@ -3,11 +3,13 @@ the expert's settings (docs/policy/goal_policy.md, sections "Status" of sessions
 
 Each run is the benchmark's run (``bench explore``'s start pose, noise seed and end rule: 95 % coverage and 95 %
 correct coverage, 1500 steps) on one val plan, so the figures pair with ``bench explore --plans`` on the same
-plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.PredictiveConfig`::
+plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.PredictiveConfig`, or with a ``follow.`` prefix
+fields of the path follower's :class:`~edge_explorer.plan.follow.FollowConfig` (every planner flies it)::
 
     python docs/policy/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
     python docs/policy/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
     python docs/policy/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
+    python docs/policy/expert_sweep.py --name ns4 --first 40 --count 96 follow.noise_sigmas=4
     python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
 
 It prints the mean path at 95 % coverage, runs that reached it and collisions, and writes every run to
@@ -31,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from edge_explorer.bench import explore as bench
+from edge_explorer.plan.follow import FollowConfig
 from edge_explorer.plan.frontier import NearestFrontier
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
@@ -43,27 +46,49 @@ from edge_explorer.world.raster import PlanRaster
 _WORKER: dict = {}
 
 
+def _typed(pair: str, fields: dict) -> tuple[str, object]:
+    key, _, value = pair.partition("=")
+    if key not in fields or not isinstance(fields[key], (bool, int, float)) or not value:
+        raise SystemExit(f"{pair!r}: expected key=value with key one of {sorted(fields)}")
+    default = fields[key]
+    return key, value == "True" if isinstance(default, bool) else type(default)(float(value))
+
+
+_NESTED = {"follow": FollowConfig}  # prefixed overrides: the config class they go to
+
+
 def parse_overrides(pairs: list[str]) -> dict:
-    """``key=value`` pairs → PredictiveConfig keyword arguments, typed like the fields' defaults."""
-    defaults = {f.name: f.default for f in dataclasses.fields(PredictiveConfig)}
-    out = {}
+    """``key=value`` pairs → PredictiveConfig keyword arguments, typed like the fields' defaults; ``follow.key=value``
+    pairs go under the ``follow`` key of the result."""
+    out: dict = {}
     for pair in pairs:
-        key, _, value = pair.partition("=")
-        if key not in defaults or isinstance(defaults[key], (PredictiveConfig, type(None))) or not value:
-            raise SystemExit(f"{pair!r}: expected key=value with key one of {sorted(defaults)}")
-        default = defaults[key]
-        out[key] = value == "True" if isinstance(default, bool) else type(default)(float(value))
+        prefix, dot, rest = pair.partition(".")
+        if dot and prefix in _NESTED:
+            key, value = _typed(rest, {f.name: f.default for f in dataclasses.fields(_NESTED[prefix])})
+            out.setdefault(prefix, {})[key] = value
+        else:
+            key, value = _typed(pair, {f.name: f.default for f in dataclasses.fields(PredictiveConfig)})
+            out[key] = value
     return out
 
 
+def predictive_config(overrides: dict) -> PredictiveConfig:
+    """The planner settings of a sweep: the defaults with ``overrides`` (as :func:`parse_overrides` returns them)."""
+    base = PredictiveConfig()
+    rest = {k: v for k, v in overrides.items() if k not in _NESTED}
+    follow = dataclasses.replace(base.planner.follow, **overrides.get("follow", {}))
+    return dataclasses.replace(base, planner=dataclasses.replace(base.planner, follow=follow), **rest)
+
+
 def _init(args: argparse.Namespace, overrides: dict) -> None:
-    _WORKER.update(args=args, config=PredictiveConfig(**overrides), predictor=bench.load_predictor(args.predictor))
+    _WORKER.update(args=args, config=predictive_config(overrides), predictor=bench.load_predictor(args.predictor))
     if args.planner == "drl":
         _WORKER["policy"] = bench.load_policy(args.policy)
 
 
-def fly(raster: PlanRaster) -> tuple[str, float | None, int]:
-    """(plan, path at 95 % coverage or None, collisions) of one benchmark run on ``raster``."""
+def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
+    """(plan, path at 95 % coverage or None, collisions, steps to 95 % coverage or None) of one benchmark run on
+    ``raster``: the steps are the flight time in control steps (turns in place add steps, not path)."""
     args, predictor = _WORKER["args"], _WORKER["predictor"]
     max_steps = bench.BenchConfig().max_steps
     config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
@@ -71,15 +96,15 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int]:
     if args.planner == "drl":
         planner = GoalPolicyPlanner(_WORKER["policy"], _WORKER["config"], env.table)
     elif args.planner == "frontier":
-        planner = NearestFrontier(table=env.table)
+        planner = NearestFrontier(_WORKER["config"].planner, env.table)
     else:
         planner = PredictiveFrontier(_WORKER["config"], env.table)
     planner.reset()
     _, info = env.reset(seed=bench.run_seed(0, raster.name, 0), options={"start_pose": bench.start_pose(raster, 0)})
-    previous, collisions, at_goal = 0, 0, None
-    for _ in range(max_steps):
+    previous, collisions, at_goal, steps_at_goal = 0, 0, None, None
+    for step in range(max_steps):
         if info["coverage"] >= 0.95 and at_goal is None:
-            at_goal = float(info["path_length_m"])
+            at_goal, steps_at_goal = float(info["path_length_m"]), step
         if info["coverage"] >= 0.95 and info["correct_coverage"] >= 0.95:
             break
         action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
@@ -88,7 +113,7 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int]:
         _, _, _, _, info = env.step(action)
         collisions += int(info["collided"])
         previous = 0 if info["collided"] else action
-    return raster.name, at_goal, collisions
+    return raster.name, at_goal, collisions, steps_at_goal
 
 
 def compare(name_a: str, name_b: str) -> str:
@@ -97,10 +122,12 @@ def compare(name_a: str, name_b: str) -> str:
     plans = [p for p in a if p in b and a[p][1] is not None and b[p][1] is not None]
     d = np.array([a[p][1] - b[p][1] for p in plans])
     mean_a, mean_b = np.mean([a[p][1] for p in plans]), np.mean([b[p][1] for p in plans])
+    steps = [np.mean([s[p][3] for p in plans]) if all(len(s[p]) > 3 for p in plans) else None for s in (a, b)]
+    step_text = f", steps to 95 % {steps[0]:.0f} vs {steps[1]:.0f}" if None not in steps else ""
     return (
         f"{name_a} - {name_b}: {d.mean():+.2f} ± {d.std(ddof=1) / np.sqrt(len(d)):.2f} m over {len(d)} plans "
         f"({mean_a:.2f} vs {mean_b:.2f} m), shorter on {(d < 0).sum()}, collisions {sum(r[2] for r in a.values())} "
-        f"vs {sum(r[2] for r in b.values())}"
+        f"vs {sum(r[2] for r in b.values())}{step_text}"
     )
 
 
