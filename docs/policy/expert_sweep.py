@@ -10,6 +10,7 @@ fields of the path follower's :class:`~edge_explorer.plan.follow.FollowConfig` (
     python docs/policy/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
     python docs/policy/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
     python docs/policy/expert_sweep.py --name ns4 --first 40 --count 96 follow.noise_sigmas=4
+    python docs/policy/expert_sweep.py --name x2 --first 40 --count 96 --noise-scale 2  # a vehicle twice as noisy
     python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
 
 It prints the mean path at 95 % coverage, runs that reached it and collisions, and writes every run to
@@ -38,6 +39,7 @@ from edge_explorer.plan.frontier import NearestFrontier
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
+from edge_explorer.sim.dynamics import VehicleModel, write_action_table
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.dataset import iter_shard_plans
@@ -80,6 +82,24 @@ def predictive_config(overrides: dict) -> PredictiveConfig:
     return dataclasses.replace(base, planner=dataclasses.replace(base.planner, follow=follow), **rest)
 
 
+def scaled_noise_table(scale: float) -> str | None:
+    """Path of an action table whose motion noise is ``scale`` times the shipped vehicle's (written under
+    runs/expert_sweep/), or ``None`` for the shipped table. The planners read it from the env, so they know it."""
+    if scale == 1.0:
+        return None
+    model = VehicleModel()
+    noisy = dataclasses.replace(
+        model,
+        pos_noise_floor_m=scale * model.pos_noise_floor_m,
+        pos_noise_frac=scale * model.pos_noise_frac,
+        yaw_noise_floor_rad=scale * model.yaw_noise_floor_rad,
+        yaw_noise_frac=scale * model.yaw_noise_frac,
+    )
+    path = _sweep_path(f"action_table_noise_x{scale:g}").with_suffix(".table.json")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return str(write_action_table(path, noisy))
+
+
 def _init(args: argparse.Namespace, overrides: dict) -> None:
     _WORKER.update(args=args, config=predictive_config(overrides), predictor=bench.load_predictor(args.predictor))
     if args.planner == "drl":
@@ -91,7 +111,9 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
     ``raster``: the steps are the flight time in control steps (turns in place add steps, not path)."""
     args, predictor = _WORKER["args"], _WORKER["predictor"]
     max_steps = bench.BenchConfig().max_steps
-    config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
+    config = EnvConfig(
+        coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor), action_table_path=args.table
+    )
     env = ExplorationEnv([raster], config, predictor=predictor)
     if args.planner == "drl":
         planner = GoalPolicyPlanner(_WORKER["policy"], _WORKER["config"], env.table)
@@ -147,6 +169,7 @@ def main() -> None:
     parser.add_argument("--policy", default="models/policy")
     parser.add_argument("--plans", type=Path, default=Path("data/plans/val"), help="the val split's shards")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--noise-scale", type=float, default=1.0, help="motion noise × this (a stress test)")
     args = parser.parse_args()
     if args.compare:
         print(compare(*args.compare))
@@ -154,6 +177,7 @@ def main() -> None:
     if not args.name:
         raise SystemExit("--name is required to fly a sweep")
     overrides = parse_overrides(args.overrides)
+    args.table = scaled_noise_table(args.noise_scale)
     shards = sorted(args.plans.glob("*.jsonl.gz"))
     if not shards:
         raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
