@@ -4,12 +4,14 @@ the expert's settings (docs/policy/goal_policy.md, sections "Status" of sessions
 Each run is the benchmark's run (``bench explore``'s start pose, noise seed and end rule: 95 % coverage and 95 %
 correct coverage, 1500 steps) on one val plan, so the figures pair with ``bench explore --plans`` on the same
 plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.PredictiveConfig`, or with a ``follow.`` prefix
-fields of the path follower's :class:`~edge_explorer.plan.follow.FollowConfig` (every planner flies it)::
+fields of the path follower's :class:`~edge_explorer.plan.follow.FollowConfig` (every planner flies it), with a
+``planner.`` prefix of the goal loop's :class:`~edge_explorer.plan.frontier.PlannerConfig`::
 
     python docs/policy/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
     python docs/policy/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
     python docs/policy/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
     python docs/policy/expert_sweep.py --name ns4 --first 40 --count 96 follow.noise_sigmas=4
+    python docs/policy/expert_sweep.py --name gr1 --first 40 --count 96 planner.goal_radius_m=1.0
     python docs/policy/expert_sweep.py --name x2 --first 40 --count 96 --noise-scale 2  # a vehicle twice as noisy
     python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
 
@@ -35,7 +37,7 @@ from tqdm import tqdm
 
 from edge_explorer.bench import explore as bench
 from edge_explorer.plan.follow import FollowConfig
-from edge_explorer.plan.frontier import NearestFrontier
+from edge_explorer.plan.frontier import NearestFrontier, PlannerConfig
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
@@ -56,12 +58,12 @@ def _typed(pair: str, fields: dict) -> tuple[str, object]:
     return key, value == "True" if isinstance(default, bool) else type(default)(float(value))
 
 
-_NESTED = {"follow": FollowConfig}  # prefixed overrides: the config class they go to
+_NESTED = {"follow": FollowConfig, "planner": PlannerConfig}  # prefixed overrides: the config class they go to
 
 
 def parse_overrides(pairs: list[str]) -> dict:
     """``key=value`` pairs → PredictiveConfig keyword arguments, typed like the fields' defaults; ``follow.key=value``
-    pairs go under the ``follow`` key of the result."""
+    and ``planner.key=value`` pairs go under the ``follow`` and ``planner`` keys of the result."""
     out: dict = {}
     for pair in pairs:
         prefix, dot, rest = pair.partition(".")
@@ -79,7 +81,8 @@ def predictive_config(overrides: dict) -> PredictiveConfig:
     base = PredictiveConfig()
     rest = {k: v for k, v in overrides.items() if k not in _NESTED}
     follow = dataclasses.replace(base.planner.follow, **overrides.get("follow", {}))
-    return dataclasses.replace(base, planner=dataclasses.replace(base.planner, follow=follow), **rest)
+    planner = dataclasses.replace(base.planner, follow=follow, **overrides.get("planner", {}))
+    return dataclasses.replace(base, planner=planner, **rest)
 
 
 def scaled_noise_table(scale: float) -> str | None:
