@@ -143,6 +143,9 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
 
 def compare(name_a: str, name_b: str) -> str:
     """Paired path at 95 % of two sweeps ``runs/expert_sweep/{A,B}.json`` over the plans both reached it on."""
+    for name in (name_a, name_b):
+        if not _sweep_path(name).is_file():
+            raise SystemExit(f"{_sweep_path(name)}: no such sweep; fly it first with --name {name}")
     a, b = ({r[0]: r for r in json.loads(_sweep_path(n).read_text())["runs"]} for n in (name_a, name_b))
     plans = [p for p in a if p in b and a[p][1] is not None and b[p][1] is not None]
     d = np.array([a[p][1] - b[p][1] for p in plans])
