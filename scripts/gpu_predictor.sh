@@ -5,15 +5,19 @@
 #      RATE gives the steps/s already measured on this kind of machine: an H200 ran 32-38),
 #   3. the U-Net trains for the rest of the box with total_steps set from that rate (the cosine schedule ends in it),
 #   4. the run folder, the train shards recorded in this box and the log are packed into $OUT (at most 16 MiB a file).
-# DATA_S=0 skips step 1; TRAIN=0 ends the box after it. The 64 MiB a call may carry does not hold the repository, the
-# OR-Tools wheel (.whl, needed to record) and the samples together, so a lease can run in two calls (session 16):
-#   1. record: carry .whl and runs/carry_p3 (data/predictor3's manifest, val/ and the train shards' .json markers only:
-#      `mkdir -p runs/carry_p3/train && cp -r data/predictor3/{manifest.json,val} runs/carry_p3/ &&
-#      cp data/predictor3/train/*.json runs/carry_p3/train/`), so the machine records only shards the host lacks:
-#      CARRIED=runs/carry_p3 TRAIN=0 DATA_S=480 bash scripts/gpu_predictor.sh; unpack $OUT/train_shards.tar.* into
-#      data/predictor3/train on the host;
-#   2. train, within 30 s (a warm machine keeps data/plans): carry data/predictor3 alone,
-#      DATA_S=0 RATE=33 CONFIG=… bash scripts/gpu_predictor.sh.
+# DATA_S=0 skips step 1; TRAIN=0 ends the box after it. A call carries at most 64 MiB: the tracked tree (about 40 MB,
+# most of it docs/ and models/), the OR-Tools wheel (.whl, 30 MB, needed to record) and the samples (data/predictor3,
+# 15 MB) do not fit together. Session 18 ran the whole box in ONE call by leaving docs/ and models/ out of the tree
+# for that call only (the index alone changes; no file is touched) and carrying the init checkpoint's folder:
+#   cp .git/info/exclude /tmp/exclude.bak && git rm -r -q --cached docs models && printf '/docs/\n/models/\n' >> .git/info/exclude
+#   run: carry .whl, data/predictor3, docs/predictor/gpu_h100/stretchN (the config's init_weights folder);
+#        BOX_S=540 DATA_S=170 RATE=33 CONFIG=edge_explorer/learn/configs/predictor_gpu_stretchN.toml bash scripts/gpu_predictor.sh
+#   then at once: git reset -q && cp /tmp/exclude.bak .git/info/exclude
+#   and unpack $OUT/run.tar.gz (the run) and $OUT/train_shards.tar.* (in data/predictor3/train) on the host.
+# Sessions 13-16 split it in two calls instead (record with CARRIED=runs/carry_p3 TRAIN=0, a markers-only carry made
+# by `mkdir -p runs/carry_p3/train && cp -r data/predictor3/{manifest.json,val} runs/carry_p3/ &&
+# cp data/predictor3/train/*.json runs/carry_p3/train/`; then train with DATA_S=0 on the warm machine within 30 s),
+# which spends a second call's transfers and more of the lease's 15 minutes.
 # Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
 # --val-plans 300 --noise-free-fraction 0.3`, the same samples the machine would make); it makes data/plans itself.
 # Wheels the machine lacks (OR-Tools for the FUEL-style explorer) travel in .whl/.
