@@ -18,10 +18,11 @@
 # by `mkdir -p runs/carry_p3/train && cp -r data/predictor3/{manifest.json,val} runs/carry_p3/ &&
 # cp data/predictor3/train/*.json runs/carry_p3/train/`; then train with DATA_S=0 on the warm machine within 30 s),
 # which spends a second call's transfers and more of the lease's 15 minutes.
-# The host records faster than a short lease box (session 18: 2 cores ~3 plans/s; the lease 9.4 plans/s over its 170 s
-# with start-up, on 16 cores), and it has hours: from session 18 on the host records between leases (`train predictor-data --out
-# data/predictor3 --train-plans 45000 --val-plans 300 --workers 2 --noise-free-fraction 0.3`, resumable) and a lease
-# trains only: DATA_S=0, no .whl, carrying data/predictor3 (1.4 MiB per 1,000 plans: ~40,000 plans fit in a call).
+# The host records faster than a short lease box (session 18: 2 cores ~3 plans/s; the lease 9.4 plans/s over its
+# 170 s with start-up, on 16 cores), and it has hours: from session 18 on the host records between leases
+# (`train predictor-data --out data/predictor3 --train-plans 45000 --val-plans 300 --workers 2
+# --noise-free-fraction 0.3`, resumable) and a lease trains only: DATA_S=0, no .whl, carrying data/predictor3
+# (1.4 MiB per 1,000 plans: ~40,000 plans fit in a call).
 # Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
 # --val-plans 300 --noise-free-fraction 0.3`, the same samples the machine would make); it makes data/plans itself.
 # Wheels the machine lacks (OR-Tools for the FUEL-style explorer) travel in .whl/.
