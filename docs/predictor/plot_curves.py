@@ -7,7 +7,8 @@ samples and wall time); a stretch's logs are ``PREFIXval_log.csv`` and ``PREFIXt
         "stretch 3: from scratch=docs/predictor/gpu_h100/stretch3/" \\
         "stretch 4: fine-tune of 3 (best val, step 3,500)=docs/predictor/gpu_h100/stretch4/" \\
         "stretch 5: fine-tune of 4 on 8,900 plans=docs/predictor/gpu_h100/stretch5/" \\
-        "stretch 6: fine-tune of 5 on 10,500 plans (shipped: step 7,700)=docs/predictor/gpu_h100/stretch6/"
+        "stretch 6: fine-tune of 5 on 10,500 plans (shipped: step 7,700)=docs/predictor/gpu_h100/stretch6/" \\
+        "stretch 7: fine-tune of 6 on 16,350 plans (not shipped)=docs/predictor/gpu_h100/stretch7/"
     python docs/predictor/plot_curves.py docs/predictor/gpu_h200/curves.png H200 \\
         "stretch 1=docs/predictor/gpu_h200/" "stretch 2: fine-tune of 1 (int8 gate failed)=docs/predictor/gpu_h200/ft_"
 """
