@@ -22,7 +22,13 @@
 # 170 s with start-up, on 16 cores), and it has hours: from session 18 on the host records between leases
 # (`train predictor-data --out data/predictor3 --train-plans 45000 --val-plans 300 --workers 2
 # --noise-free-fraction 0.3`, resumable) and a lease trains only: DATA_S=0, no .whl, carrying data/predictor3
-# (1.4 MiB per 1,000 plans: ~40,000 plans fit in a call).
+# (~1.6 MiB per 1,000 plans). All 45,000 plans (~75 MiB) take two calls on the same warm machine; data/predictor3
+# is not a carried path of the second call, so what the first call copied into it stays:
+#   mkdir -p runs/carry_p3a/train runs/carry_p3b/train && cp -r data/predictor3/{manifest.json,val} runs/carry_p3a/
+#   cp -l data/predictor3/train/shard-00[0-3]* data/predictor3/train/shard-004[0-4]* runs/carry_p3a/train/
+#   cp -l data/predictor3/train/shard-004[5-9]* data/predictor3/train/shard-00[5-9]* runs/carry_p3b/train/
+#   call 1, carry runs/carry_p3a: mkdir -p data/predictor3 && cp -r runs/carry_p3a/. data/predictor3/
+#   call 2, carry runs/carry_p3b and the init folder: CARRIED=runs/carry_p3b DATA_S=0 RATE=33 ... bash THIS
 # Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
 # --val-plans 300 --noise-free-fraction 0.3`, the same samples the machine would make); it makes data/plans itself.
 # Wheels the machine lacks (OR-Tools for the FUEL-style explorer) travel in .whl/.
