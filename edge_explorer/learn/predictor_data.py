@@ -478,6 +478,7 @@ class LossWeighting:
 
     exterior_weight: float = 0.1
     observed_weight: float = 0.0
+    wall_weight: float = 1.0
 
 
 class PredictorDataset(torch.utils.data.Dataset):
@@ -523,7 +524,7 @@ class PredictorDataset(torch.utils.data.Dataset):
         return (
             torch.from_numpy(encode_windows(observed)),
             torch.from_numpy(occupancy_target(truth)[None]),
-            torch.from_numpy(loss_weights(truth, observed, w.exterior_weight, w.observed_weight)[None]),
+            torch.from_numpy(loss_weights(truth, observed, w.exterior_weight, w.observed_weight, w.wall_weight)[None]),
         )
 
 

@@ -5,7 +5,8 @@ step take the next batch of a per-epoch permutation, augment, compute the loss, 
 validate and checkpoint.
 
 Loss: per-cell BCE on the logits, weighted by :func:`edge_explorer.predict.encoding.loss_weights` — unobserved
-interior cells count 1, unobserved exterior cells (target "occupied") ``exterior_weight``, observed cells
+interior cells count 1 (``wall_weight`` where the truth is occupied), unobserved exterior cells (target "occupied")
+``exterior_weight``, observed cells
 ``observed_weight`` (default 0: the observation always overrides the prediction, so learning to copy it is wasted
 capacity) — summed and divided by the batch's total weight. ``init_weights`` starts from another run's checkpoint
 (fine-tuning); ``quantization_aware`` rounds every ReLU tensor to int8 levels in the loop
@@ -71,6 +72,7 @@ class PredictorTrainConfig:
     head_channels: int = 8
     exterior_weight: float = 0.1
     observed_weight: float = 0.0
+    wall_weight: float = 1.0  # unobserved interior OCCUPIED cells (walls) against 1 for free ones; 1 = unweighted
     augment: bool = True
     init_weights: str = ""  # a checkpoint.safetensors to start from (fine-tuning); "" = random initialisation
     quantization_aware: bool = False  # round every ReLU tensor to int8 levels in the loop (learn.fake_quant)
@@ -102,8 +104,8 @@ class PredictorTrainConfig:
                 raise EdgeExplorerError(f"config: {name} must be ≥ 1, got {getattr(self, name)}")
         if self.learning_rate <= 0 or self.weight_decay < 0 or self.warmup_steps < 0:
             raise EdgeExplorerError("config: learning_rate must be > 0, weight_decay and warmup_steps ≥ 0")
-        if self.exterior_weight < 0 or self.observed_weight < 0:
-            raise EdgeExplorerError("config: exterior_weight and observed_weight must be ≥ 0")
+        if self.exterior_weight < 0 or self.observed_weight < 0 or self.wall_weight <= 0:
+            raise EdgeExplorerError("config: exterior_weight and observed_weight must be ≥ 0, wall_weight > 0")
 
     @property
     def unet(self) -> UNetConfig:
@@ -111,7 +113,7 @@ class PredictorTrainConfig:
 
     @property
     def weighting(self) -> LossWeighting:
-        return LossWeighting(self.exterior_weight, self.observed_weight)
+        return LossWeighting(self.exterior_weight, self.observed_weight, self.wall_weight)
 
     def to_dict(self) -> dict:
         return {**dataclasses.asdict(self), "channels": list(self.channels)}

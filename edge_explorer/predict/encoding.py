@@ -62,10 +62,17 @@ def occupancy_target(truth_window: np.ndarray) -> np.ndarray:
 
 
 def loss_weights(
-    truth_window: np.ndarray, observed_window: np.ndarray, exterior_weight: float, observed_weight: float
+    truth_window: np.ndarray,
+    observed_window: np.ndarray,
+    exterior_weight: float,
+    observed_weight: float,
+    wall_weight: float = 1.0,
 ) -> np.ndarray:
-    """Per-cell BCE weights: 1 for unobserved interior cells, ``exterior_weight`` for unobserved exterior cells,
-    ``observed_weight`` for observed cells (their prediction is never used: the observation always wins)."""
+    """Per-cell BCE weights: 1 for unobserved interior free cells, ``wall_weight`` for unobserved interior occupied
+    cells (the structure, a few per cent of a window; issue #17's wall-weighting lever), ``exterior_weight`` for
+    unobserved exterior cells, ``observed_weight`` for observed cells (their prediction is never used: the
+    observation always wins)."""
     weights = np.where(truth_window == UNKNOWN, np.float32(exterior_weight), np.float32(1.0))
+    weights[truth_window == OCCUPIED] = wall_weight
     weights[observed_window != UNKNOWN] = observed_weight
     return weights.astype(np.float32, copy=False)

@@ -41,3 +41,9 @@ def test_targets_call_the_exterior_occupied_and_weights_mask_observed_cells():
     np.testing.assert_allclose(loss_weights(truth, observed, 0.1, 0.0), [[1, 1, 0.1]])
     observed[0, 0] = FREE
     np.testing.assert_allclose(loss_weights(truth, observed, 0.1, 0.3), [[0.3, 1, 0.1]])
+
+
+def test_wall_weight_scales_only_unobserved_interior_walls():
+    truth = np.array([[FREE, OCCUPIED, UNKNOWN, OCCUPIED]], dtype=CELL_DTYPE)
+    observed = np.array([[UNKNOWN, UNKNOWN, UNKNOWN, OCCUPIED]], dtype=CELL_DTYPE)
+    np.testing.assert_allclose(loss_weights(truth, observed, 0.1, 0.0, wall_weight=3.0), [[1, 3, 0.1, 0]])
