@@ -40,6 +40,9 @@ def test_config_errors_name_the_key(tmp_path):
     path.write_text('batch_size = "4"\n')
     with pytest.raises(EdgeExplorerError, match="batch_size must be int"):
         load_config(path)
+    path.write_text("wall_weight = 0\n")
+    with pytest.raises(EdgeExplorerError, match="wall_weight > 0"):
+        load_config(path)
     path.write_text("learning_rate = 1\nchannels = [4, 8]\n")
     assert load_config(path).learning_rate == 1.0 and load_config(path).channels == (4, 8)
 
