@@ -8,6 +8,9 @@ against leaving it UNKNOWN, so the filled map is about the best any pair can do 
 
     python docs/predictor/session19/f1_bound.py collect --split val --plans 100 --out bound_val.json
     python docs/predictor/session19/f1_bound.py plot bound_val.json bound_test.json --png bound.png
+
+``--model`` also takes a training run's ``best.safetensors`` (the torch model, fp32), so models that were never
+exported compare like for like (session 20's levers); ``--levels`` picks the true-coverage levels.
 """
 
 from __future__ import annotations
@@ -23,20 +26,18 @@ PAIRS = ((0.35, 0.96), (0.35, 0.9), (0.35, 0.8), (0.35, 0.7), (0.35, 0.6), (0.45
 LEVELS = (0.8, 0.95, 0.98)
 
 
-def collect(split: str, plans: int, noise: float, model: Path) -> dict:
-    from edge_explorer.backends.card import CARD_FILE
-    from edge_explorer.backends.chain import load_model
+def collect(split: str, plans: int, noise: float, model: Path, levels: tuple[float, ...] = LEVELS) -> dict:
+    from edge_explorer.bench.explore import load_predictor
     from edge_explorer.learn.calibrate_predictor import collect_samples
     from edge_explorer.learn.predictor_data import DEFAULT_SENSOR
     from edge_explorer.mapping.metrics import map_metrics
-    from edge_explorer.predict.predictor import PredictorRuntime
     from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 
-    predictor = PredictorRuntime(load_model(model / CARD_FILE))
+    predictor = load_predictor(str(model))
     sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=noise)
-    _, samples = collect_samples(predictor, plans, levels=LEVELS, sensor=sensor, split=split)
+    _, samples = collect_samples(predictor, plans, levels=levels, sensor=sensor, split=split)
     out: dict = {"split": split, "plans": plans, "noise": noise, "model": str(model), "levels": {}}
-    for level in LEVELS:
+    for level in levels:
         at = [s for s in samples if s.level == level]
         row = {
             "n": len(at),
@@ -82,13 +83,15 @@ def main() -> None:
     c.add_argument("--plans", type=int, default=100)
     c.add_argument("--noise", type=float, default=0.1)
     c.add_argument("--model", type=Path, default=Path("models/predictor"))
+    c.add_argument("--levels", type=float, nargs="+", default=list(LEVELS), help="true coverage levels")
     c.add_argument("--out", type=Path, required=True)
     p = sub.add_parser("plot")
     p.add_argument("json", type=Path, nargs="+")
     p.add_argument("--png", type=Path, required=True)
     args = parser.parse_args()
     if args.command == "collect":
-        args.out.write_text(json.dumps(collect(args.split, args.plans, args.noise, args.model), indent=1) + "\n")
+        figures = collect(args.split, args.plans, args.noise, args.model, tuple(args.levels))
+        args.out.write_text(json.dumps(figures, indent=1) + "\n")
     else:
         plot(args.json, args.png)
 
