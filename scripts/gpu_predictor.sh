@@ -29,6 +29,9 @@
 #   cp -l data/predictor3/train/shard-004[5-9]* data/predictor3/train/shard-00[5-9]* runs/carry_p3b/train/
 #   call 1, carry runs/carry_p3a: mkdir -p data/predictor3 && cp -r runs/carry_p3a/. data/predictor3/
 #   call 2, carry runs/carry_p3b and the init folder: CARRIED=runs/carry_p3b DATA_S=0 RATE=33 ... bash THIS
+# Session 20: a session can start on a new machine without the previous one's ignored folders (data/, runs/); the
+# 42,450 plans recorded into data/predictor3 by session 19 were lost that way. Check `ls data/predictor3/train | wc -l`
+# before planning a lease around them; the host re-records ~1.6 plans/s on its two cores.
 # Needs data/predictor3/val (made on the host: `train predictor-data --out data/predictor3 --train-plans 0
 # --val-plans 300 --noise-free-fraction 0.3`, the same samples the machine would make); it makes data/plans itself.
 # Wheels the machine lacks (OR-Tools for the FUEL-style explorer) travel in .whl/.
