@@ -8,6 +8,7 @@ against leaving it UNKNOWN, so the filled map is about the best any pair can do 
 
     python docs/predictor/session19/f1_bound.py collect --split val --plans 100 --out bound_val.json
     python docs/predictor/session19/f1_bound.py plot bound_val.json bound_test.json --png bound.png
+    python docs/predictor/session19/f1_bound.py paired base.json wall2.json  # B − A, per sample
 
 ``--model`` also takes a training run's ``best.safetensors`` (the torch model, fp32), so models that were never
 exported compare like for like (session 20's levers); ``--levels`` picks the true-coverage levels.
@@ -39,18 +40,39 @@ def collect(split: str, plans: int, noise: float, model: Path, levels: tuple[flo
     out: dict = {"split": split, "plans": plans, "noise": noise, "model": str(model), "levels": {}}
     for level in levels:
         at = [s for s in samples if s.level == level]
+        observed = [map_metrics(s.observed, s.truth, s.interior).f1 for s in at]
         row = {
             "n": len(at),
             "ceiling": float(np.mean([map_metrics(s.observed, s.truth, s.interior, s.truth).f1 for s in at])),
-            "observed": float(np.mean([map_metrics(s.observed, s.truth, s.interior).f1 for s in at])),
+            "observed": float(np.mean(observed)),
+            "per_sample": {"observed": np.round(observed, 6).tolist()},
         }
         for t_f, t_o in PAIRS:
             config = ThresholdConfig(t_f, t_o)
             filled = [thresholded_map(s.probabilities, s.observed, s.observed_area_m2, config) for s in at]
             f1 = [map_metrics(s.observed, s.truth, s.interior, t).f1 for s, t in zip(at, filled, strict=True)]
             row[f"{t_f}/{t_o}"] = float(np.mean(f1))
+            row["per_sample"][f"{t_f}/{t_o}"] = np.round(f1, 6).tolist()
         out["levels"][str(level)] = row
     return out
+
+
+def paired(path_a: Path, path_b: Path) -> str:
+    """B − A per level and pair (mean ± s.e. over samples) of two collects of the same flights: the explorer does not
+    read the predictor, so sample k is the same map in both (checked on the observed map's F1)."""
+    a, b = (json.loads(p.read_text())["levels"] for p in (path_a, path_b))
+    lines = []
+    for level in a:
+        sa, sb = a[level]["per_sample"], b[level]["per_sample"]
+        if sa["observed"] != sb["observed"]:
+            raise SystemExit(f"level {level}: the two files are not the same flights; collect both with one command")
+        for pair in (k for k in sa if k != "observed"):
+            d = np.array(sb[pair]) - np.array(sa[pair])
+            lines.append(
+                f"{level} {pair}: {d.mean():+.4f} ± {d.std(ddof=1) / np.sqrt(len(d)):.4f} (B better on "
+                f"{(d > 0).sum()}/{len(d)})"
+            )
+    return "\n".join(lines)
 
 
 def plot(paths: list[Path], png: Path) -> None:
@@ -85,6 +107,9 @@ def main() -> None:
     c.add_argument("--model", type=Path, default=Path("models/predictor"))
     c.add_argument("--levels", type=float, nargs="+", default=list(LEVELS), help="true coverage levels")
     c.add_argument("--out", type=Path, required=True)
+    d = sub.add_parser("paired", help="B − A of two collects of the same flights")
+    d.add_argument("a", type=Path)
+    d.add_argument("b", type=Path)
     p = sub.add_parser("plot")
     p.add_argument("json", type=Path, nargs="+")
     p.add_argument("--png", type=Path, required=True)
@@ -92,6 +117,8 @@ def main() -> None:
     if args.command == "collect":
         figures = collect(args.split, args.plans, args.noise, args.model, tuple(args.levels))
         args.out.write_text(json.dumps(figures, indent=1) + "\n")
+    elif args.command == "paired":
+        print(paired(args.a, args.b))
     else:
         plot(args.json, args.png)
 
