@@ -84,9 +84,6 @@ class PredictiveConfig:
     # (40-135: 33.45 vs 34.13 m; 136-231: 33.06 vs 34.78) and test/A-D a little, but lengthened the real plans by
     # +3.0 ± 1.3 m with a collision (docs/policy/goal_policy.md, session 15), so the policy flies alone.
     policy_cost_weight_per_m: float = 0.0
-    # near-ties: among the worthwhile clusters scoring within this share of the best (with γ = 0: whose path is at
-    # most (1 + ratio) × the nearest one's, plus the offset), the one revealing the most is flown. 0 keeps the best.
-    tie_ratio: float = 0.0
 
     def __post_init__(self) -> None:
         if (
@@ -96,11 +93,10 @@ class PredictiveConfig:
             or self.gain_exponent < 0
             or self.near_fallback_ratio < 0
             or self.policy_cost_weight_per_m < 0
-            or self.tie_ratio < 0
         ):
             raise ValueError(
                 "cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent, "
-                "near_fallback_ratio, policy_cost_weight_per_m, tie_ratio ≥ 0"
+                "near_fallback_ratio, policy_cost_weight_per_m ≥ 0"
             )
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")
@@ -170,9 +166,6 @@ def choose_cluster(paths_m: np.ndarray, gains_cells: np.ndarray, config: Predict
         return nearest_rest
     scores = np.where(worth, gains_cells.astype(float) ** config.gain_exponent / (paths_m + config.cost_offset_m), -1.0)
     best = int(np.argmax(scores))
-    if config.tie_ratio > 0:  # near-ties go to the cluster revealing the most, not to whichever noise made nearer
-        ties = np.flatnonzero(scores * (1.0 + config.tie_ratio) >= scores[best])
-        best = int(ties[np.argmax(gains_cells[ties])])
     if nearest_rest is not None and paths_m[nearest_rest] < config.near_fallback_ratio * paths_m[best]:
         return nearest_rest
     return best
