@@ -84,9 +84,6 @@ class PredictiveConfig:
     # (40-135: 33.45 vs 34.13 m; 136-231: 33.06 vs 34.78) and test/A-D a little, but lengthened the real plans by
     # +3.0 ± 1.3 m with a collision (docs/policy/goal_policy.md, session 15), so the policy flies alone.
     policy_cost_weight_per_m: float = 0.0
-    # the expert plans on a fused map that remembers what the thresholded prediction once claimed of a cell until the
-    # cell is observed (session 22 experiment against the prediction's flicker); coverage still counts this step's.
-    remember_prediction: bool = False
 
     def __post_init__(self) -> None:
         if (
@@ -182,7 +179,6 @@ class PredictiveFrontier(GoalPlanner):
         self.predictive = config
         self._fused: np.ndarray | None = None  # this step's fused 0.20 m map
         self._committed: np.ndarray | None = None  # bool, 0.20 m: targets the prediction once ended unobserved
-        self._claimed: np.ndarray | None = None  # int8 codes, 0.20 m: the last prediction made of each cell
         self.last_action = 0  # the motion the vehicle carries into this step (a learned planner observes it)
 
     def act(
@@ -199,14 +195,11 @@ class PredictiveFrontier(GoalPlanner):
     def reset(self) -> None:
         super().reset()
         self._committed = None
-        self._claimed = None
 
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """The fused frontier plus the committed targets still on the observed frontier (less the dropped
         targets), or the observed frontier when that is empty."""
         self._fused = maps.low if fused_low is None else fused_low
-        if self.predictive.remember_prediction and fused_low is not None:
-            self._fused = self.remembered(maps.low, fused_low)
         dropped = self.dropped(maps)
         if self._committed is None or self._committed.shape != maps.low.shape:
             self._committed = np.zeros(maps.low.shape, dtype=bool)
@@ -216,13 +209,6 @@ class PredictiveFrontier(GoalPlanner):
         if not frontier.any():
             frontier = observed & ~dropped
         return View(maps, pose, frontier, self.config)
-
-    def remembered(self, observed_low: np.ndarray, fused_low: np.ndarray) -> np.ndarray:
-        """The fused map with each unobserved cell the prediction now leaves UNKNOWN set to its last prediction."""
-        if self._claimed is None or self._claimed.shape != fused_low.shape:
-            self._claimed = np.full(fused_low.shape, UNKNOWN, dtype=fused_low.dtype)
-        self._claimed = np.where(fused_low != UNKNOWN, fused_low, self._claimed)
-        return np.where(observed_low != UNKNOWN, observed_low, self._claimed).astype(fused_low.dtype, copy=False)
 
     def status(self, goal: Goal, view: View, pose: Pose) -> str:
         """The shared events, plus commitment: a target that stops being a fused frontier while most of it is still
