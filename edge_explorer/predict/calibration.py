@@ -32,14 +32,16 @@ DEFAULT_PRECISION_TARGET = 0.95
 # levels can be asked for; on the shipped predictor no pair reaches 95 % at 25 % (docs/predictor/calibration.md).
 DEFAULT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95)
 # Candidate grids; both contain the defaults (0.04, 0.94) so the calibrated pair is compared with them exactly.
-# t_f_max reaches far: mid-flight the dynamic factor min(1, 10·(area / max area)^4) is often below 0.1.
+# t_f_max reaches far: mid-flight the dynamic factor min(1, 10·(area / max area)^4) is often below 0.1. t_o reaches
+# 0.998: a confident model's occupied claims at 50 % coverage are < 95 % right even above 0.99 (a widened U-Net,
+# docs/predictor/at_scale.md, session 22), and such a model must still be calibratable.
 T_F_MAX_CANDIDATES: tuple[float, ...] = (
     *(0.005, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.10, 0.12, 0.15),
     *(0.20, 0.25, 0.30, 0.35, 0.40, 0.45, 0.50, 0.60, 0.70),
 )
 T_O_CANDIDATES: tuple[float, ...] = (
     *(0.5, 0.6, 0.7, 0.75, 0.8, 0.85, 0.88, 0.9),
-    *(0.92, 0.94, 0.95, 0.96, 0.97, 0.98, 0.99),
+    *(0.92, 0.94, 0.95, 0.96, 0.97, 0.98, 0.99, 0.995, 0.998),
 )
 RELIABILITY_BINS = 20
 

@@ -55,6 +55,14 @@ def test_calibration_picks_the_pair_that_adds_most_while_meeting_the_precision()
     assert result.score_of(ThresholdConfig(t_f_max=0.12, t_o=0.8)).precision == {0.5: pytest.approx(0.9)}
 
 
+def test_the_default_grid_calibrates_a_model_whose_claims_above_099_are_still_wrong():
+    # a confident model: its wrong wall claims sit at 0.992, above the old grid's top t_o = 0.99
+    confident = sample([(0.999, OCCUPIED)] * 20 + [(0.992, FREE)] * 4 + [(0.001, FREE)] * 20, observed=20)
+    result = calibrate([confident], 0.95)
+    assert result.met_target and result.thresholds.t_o > 0.992
+    assert result.chosen.precision == {0.5: 1.0} and result.chosen.coverage_added == {0.5: pytest.approx(40 / 64)}
+
+
 def test_a_lower_target_accepts_the_wider_pair():
     result = calibrate([FIXTURE], 0.9, t_f_max_candidates=(0.05, 0.10, 0.12), t_o_candidates=(0.8, 0.88, 0.95))
     assert result.thresholds == ThresholdConfig(t_f_max=0.12, t_o=0.8)
