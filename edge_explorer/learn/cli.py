@@ -143,12 +143,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     ppo.add_argument(
         "--eval-plans", type=positive_int, default=10, help="val plans per evaluation (10; more select better)"
     )
-    ppo.add_argument(
-        "--value-warmup",
-        type=_non_negative_int,
-        default=0,
-        help="first decisions that train the value head alone, the policy frozen (0: none; BC trains no critic)",
-    )
     ppo.add_argument("--out", type=Path, required=True, help="run folder")
     ppo.add_argument("--resume", action="store_true", help="continue the run in OUT")
     add_ray_argument(ppo)
@@ -292,7 +286,6 @@ def _goal_ppo(args: argparse.Namespace) -> int:
         n_envs=args.envs,
         train_plans=args.train_plans,
         eval_plans=args.eval_plans,
-        value_warmup_decisions=args.value_warmup,
     )
     decisions = train(config, args.out, resume=args.resume, ray=args.ray)
     print(f"{decisions} decisions trained → {args.out} (best.safetensors, val_log.csv)")

@@ -12,8 +12,7 @@ the first ``train_plans`` plans of the train split — or, with ``ray``, in ``n_
 cluster (:class:`~edge_explorer.learn.ray_vec_env.RayVecEnv`; the learner stays in this process). Every
 ``checkpoint_every`` decisions the SB3 model is saved to
 ``OUT/checkpoint.zip`` (SB3's format, for ``--resume`` inside runs/ only) and the network to
-``OUT/latest.safetensors``; the first ``value_warmup_decisions`` train the critic alone (the BC clone has none);
-every ``eval_every`` decisions the deterministic policy flies ``eval_plans`` val plans
+``OUT/latest.safetensors``; every ``eval_every`` decisions the deterministic policy flies ``eval_plans`` val plans
 through the benchmark (:func:`~edge_explorer.bench.explore.run_episode`) and ``OUT/val_log.csv`` records success
 and the path at 95 % coverage; the best (most successes, then the shortest mean path) is ``OUT/best.safetensors``.
 """
@@ -69,15 +68,10 @@ class PPOConfig:
     eval_plans: int = 10
     max_steps: int = 1500
     seed: int = 0
-    # the first decisions train the value head alone (the policy frozen): BC leaves the critic untrained, and its
-    # random values made the first PPO updates undo the clone (session 23: 6 evaluations 4-8 m worse than BC's).
-    value_warmup_decisions: int = 0
 
     def __post_init__(self) -> None:
         if min(self.n_envs, self.n_steps, self.batch_size, self.n_epochs, self.total_decisions, self.eval_plans) < 1:
             raise EdgeExplorerError("n_envs, n_steps, batch_size, n_epochs, total_decisions, eval_plans must be ≥ 1")
-        if self.value_warmup_decisions < 0:
-            raise EdgeExplorerError(f"value_warmup_decisions {self.value_warmup_decisions} must be ≥ 0")
 
 
 class GoalFeatures(BaseFeaturesExtractor):
@@ -120,13 +114,6 @@ class GoalActorCritic(MaskableMultiInputActorCriticPolicy):
     @property
     def goal_net(self) -> GoalNet:
         return self.features_extractor.net
-
-
-def train_value_only(net: GoalNet, value_only: bool) -> None:
-    """Freeze every parameter of ``net`` but its value head (``value_only``), or unfreeze them all: while frozen,
-    PPO's updates fit the critic and leave the policy's goal scores exactly as they were."""
-    for name, parameter in net.named_parameters():
-        parameter.requires_grad_(not value_only or name.startswith("value."))
 
 
 class _ScaledReward(gym.Wrapper):
@@ -200,9 +187,6 @@ class _Progress(BaseCallback):
         from tqdm import tqdm
 
         self.bar = tqdm(total=self.config.total_decisions, initial=self.model.num_timesteps, desc="goal PPO")
-
-    def _on_rollout_end(self) -> None:  # before each update: the critic alone until the warm-up is over
-        train_value_only(self.model.policy.goal_net, self.model.num_timesteps <= self.config.value_warmup_decisions)
 
     def _on_step(self) -> bool:
         done = self.model.num_timesteps

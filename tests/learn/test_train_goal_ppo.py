@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.goal_net import GoalNet, load_goal_net, save_goal_net
-from edge_explorer.learn.train_goal_ppo import GoalActorCritic, PPOConfig, train, train_value_only
+from edge_explorer.learn.train_goal_ppo import GoalActorCritic, PPOConfig, train
 from edge_explorer.sim.goal_env import NUM_GOALS
 from edge_explorer.world.dataset import generate_dataset
 from tests.learn.test_goal_policy_training import TINY_NET
@@ -72,46 +71,6 @@ def test_ppo_trains_checkpoints_and_resumes(tiny_plans, tmp_path):
     resumed = PPOConfig(**{**config.__dict__, "total_decisions": 8})
     assert train(resumed, run, resume=True) >= 8
     assert load_goal_net(run / "latest.safetensors").config == TINY_NET
-
-
-def test_value_only_freezes_every_parameter_but_the_value_head():
-    net = GoalNet(TINY_NET)
-    train_value_only(net, True)
-    trainable = {name for name, p in net.named_parameters() if p.requires_grad}
-    assert trainable == {"value.weight", "value.bias"}
-    train_value_only(net, False)
-    assert all(p.requires_grad for p in net.parameters())
-    with pytest.raises(EdgeExplorerError, match="value_warmup_decisions"):
-        PPOConfig(value_warmup_decisions=-1)
-
-
-@pytest.mark.slow
-def test_value_warmup_updates_the_critic_and_leaves_the_policy(tiny_plans, tmp_path):
-    init = tmp_path / "bc.safetensors"
-    save_goal_net(GoalNet(TINY_NET), init)
-    config = PPOConfig(
-        init_weights=str(init),
-        plans=str(tiny_plans),
-        train_plans=2,
-        val_first=0,
-        predictor="",
-        n_envs=1,
-        n_steps=4,
-        batch_size=4,
-        n_epochs=2,
-        learning_rate=1e-2,
-        total_decisions=4,
-        checkpoint_every=4,
-        eval_every=100,
-        eval_plans=1,
-        max_steps=150,
-        value_warmup_decisions=4,
-    )
-    train(config, tmp_path / "run")
-    before = load_goal_net(init).state_dict()
-    after = load_goal_net(tmp_path / "run" / "latest.safetensors").state_dict()
-    changed = {name for name in before if not torch.equal(before[name], after[name])}
-    assert changed and changed <= {"value.weight", "value.bias"}
 
 
 @pytest.mark.slow
