@@ -83,9 +83,8 @@ def _flight(raster: PlanRaster, rng: np.random.Generator | None) -> tuple[float 
     """(path at 95 % coverage or None, collisions, decisions) of the benchmark's run 0 on ``raster``."""
     args, predictor = _WORKER["args"], _WORKER["predictor"]
     max_steps = bench.BenchConfig().max_steps
-    env = ExplorationEnv(
-        [raster], EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor)), predictor=predictor
-    )
+    config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
+    env = ExplorationEnv([raster], config, predictor=predictor)
     planner = RecordingPolicyPlanner(_WORKER["policy"], env.table, args.temperature, rng)
     planner.reset()
     _, info = env.reset(seed=bench.run_seed(0, raster.name, 0), options={"start_pose": bench.start_pose(raster, 0)})
