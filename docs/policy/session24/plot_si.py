@@ -1,8 +1,9 @@
-"""Per-plan path at 95 % of the self-imitated policy against the shipped one on two sets of val plans (session 24).
+"""Per-plan path at 95 % of the self-imitated policy against the shipped one on three sets of val plans (session 24).
 
     python docs/policy/session24/plot_si.py docs/policy/session24/si_paired.png \\
         "val 40–135=docs/policy/session24/s24_si_last.json:docs/policy/session23/s23_drl_base.json" \\
-        "val 136–231=docs/policy/session24/s24_si_last_b.json:docs/policy/session24/s24_drl_base_b.json"
+        "val 136–231=docs/policy/session24/s24_si_last_b.json:docs/policy/session24/s24_drl_base_b.json" \\
+        "val 232–327=docs/policy/session24/s24_si_last_c.json:docs/policy/session24/s24_drl_base_c.json"
 """
 
 import json
