@@ -124,6 +124,15 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
         planner = NearestFrontier(_WORKER["config"].planner, env.table)
     else:
         planner = PredictiveFrontier(_WORKER["config"], env.table)
+    at_goal, collisions, steps_at_goal, _ = fly_run(env, planner, raster, max_steps)
+    return raster.name, at_goal, collisions, steps_at_goal
+
+
+def fly_run(
+    env: ExplorationEnv, planner, raster: PlanRaster, max_steps: int
+) -> tuple[float | None, int, int | None, bool]:
+    """(path at 95 % coverage or None, collisions, steps to it or None, whether 95 % correct coverage was reached
+    too) of ``planner`` flying the benchmark's run 0 on ``raster`` in ``env``."""
     planner.reset()
     _, info = env.reset(seed=bench.run_seed(0, raster.name, 0), options={"start_pose": bench.start_pose(raster, 0)})
     previous, collisions, at_goal, steps_at_goal = 0, 0, None, None
@@ -131,14 +140,14 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
         if info["coverage"] >= 0.95 and at_goal is None:
             at_goal, steps_at_goal = float(info["path_length_m"]), step
         if info["coverage"] >= 0.95 and info["correct_coverage"] >= 0.95:
-            break
+            return at_goal, collisions, steps_at_goal, True
         action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
         if action is None:
             break
         _, _, _, _, info = env.step(action)
         collisions += int(info["collided"])
         previous = 0 if info["collided"] else action
-    return raster.name, at_goal, collisions, steps_at_goal
+    return at_goal, collisions, steps_at_goal, False
 
 
 def compare(name_a: str, name_b: str) -> str:

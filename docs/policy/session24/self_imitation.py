@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import sys
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -41,6 +42,9 @@ from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.dataset import iter_shard_plans
 from edge_explorer.world.raster import PlanRaster
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # docs/policy: the sweep's benchmark run
+from expert_sweep import fly_run  # noqa: E402
 
 _WORKER: dict = {}
 
@@ -86,21 +90,7 @@ def _flight(raster: PlanRaster, rng: np.random.Generator | None) -> tuple[float 
     config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
     planner = RecordingPolicyPlanner(_WORKER["policy"], env.table, args.temperature, rng)
-    planner.reset()
-    _, info = env.reset(seed=bench.run_seed(0, raster.name, 0), options={"start_pose": bench.start_pose(raster, 0)})
-    previous, collisions, at_goal, done = 0, 0, None, False
-    for _ in range(max_steps):
-        if info["coverage"] >= 0.95 and at_goal is None:
-            at_goal = float(info["path_length_m"])
-        if info["coverage"] >= 0.95 and info["correct_coverage"] >= 0.95:
-            done = True
-            break
-        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
-        if action is None:
-            break
-        _, _, _, _, info = env.step(action)
-        collisions += int(info["collided"])
-        previous = 0 if info["collided"] else action
+    at_goal, collisions, _, done = fly_run(env, planner, raster, max_steps)
     return (at_goal if done else None), collisions, planner.records
 
 
