@@ -117,6 +117,28 @@ def plan_rollouts(indexed: tuple[int, PlanRaster]) -> dict:
     }
 
 
+def _write_block(args: argparse.Namespace, rows: list[dict], block: list[Record], before: int) -> int:
+    """Writes one block's kept decisions as a demo shard and the summary so far, so a run cut off (a lease's box)
+    keeps every finished block; returns the block's decision count."""
+    if block:
+        name = f"shard-{(len(rows) - 1) // args.block:06d}"
+        write_demos(args.out / f"{name}.npz", block)
+        (args.out / f"{name}.json").write_text(json.dumps({"decisions": len(block)}))
+    greedy = np.array([r["greedy"] if r["greedy"] is not None else np.nan for r in rows])
+    best = np.array([min([p for p in r["sampled"] if p is not None], default=np.nan) for r in rows])
+    summary = {
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "plans": len(rows),
+        "kept": sum(r["kept"] for r in rows),
+        "decisions": before + len(block),
+        "greedy_mean_m": float(np.nanmean(greedy)),
+        "best_sampled_mean_m": float(np.nanmean(best)),
+        "rows": rows,
+    }
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return len(block)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--first", type=int, required=True, help="first train plan")
@@ -130,36 +152,28 @@ def main() -> None:
     parser.add_argument("--policy", default="models/policy")
     parser.add_argument("--plans", type=Path, default=Path("data/plans/train"))
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--block", type=int, default=16, help="plans per demo shard (written as each block ends)")
     args = parser.parse_args()
     shards = sorted(args.plans.glob("*.jsonl.gz"))
     if not shards:
         raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
     plans = [plan_to_raster(p) for p in itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)]
     args.out.mkdir(parents=True, exist_ok=True)
-    rows, records = [], []
+    rows: list[dict] = []
+    decisions = 0
     with Pool(args.workers, initializer=_init, initargs=(args,)) as pool:
         jobs = pool.imap(plan_rollouts, enumerate(plans, start=args.first))
+        block: list[Record] = []
         for row in tqdm(jobs, total=len(plans), desc="self-imitation"):
-            records += row.pop("records")
+            block += row.pop("records")
             rows.append(row)
-    if records:
-        write_demos(args.out / "shard-000000.npz", records)
-        (args.out / "shard-000000.json").write_text(json.dumps({"decisions": len(records)}))
-    greedy = np.array([r["greedy"] if r["greedy"] is not None else np.nan for r in rows])
-    best = np.array([min([p for p in r["sampled"] if p is not None], default=np.nan) for r in rows])
-    summary = {
-        "args": {k: str(v) for k, v in vars(args).items()},
-        "plans": len(rows),
-        "kept": sum(r["kept"] for r in rows),
-        "decisions": len(records),
-        "greedy_mean_m": float(np.nanmean(greedy)),
-        "best_sampled_mean_m": float(np.nanmean(best)),
-        "rows": rows,
-    }
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+            if len(rows) % args.block == 0 or len(rows) == len(plans):
+                decisions += _write_block(args, rows, block, decisions)
+                block = []
+    summary = json.loads((args.out / "summary.json").read_text())
     print(
         f"{len(rows)} plans: greedy {summary['greedy_mean_m']:.2f} m, best of {args.samples} sampled "
-        f"{summary['best_sampled_mean_m']:.2f} m; kept {summary['kept']} plans, {len(records)} decisions -> {args.out}"
+        f"{summary['best_sampled_mean_m']:.2f} m; kept {summary['kept']} plans, {decisions} decisions -> {args.out}"
     )
 
 
