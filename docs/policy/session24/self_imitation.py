@@ -41,6 +41,7 @@ from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.dataset import iter_shard_plans
+from edge_explorer.world.plan import FloorPlan
 from edge_explorer.world.raster import PlanRaster
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # docs/policy: the sweep's benchmark run
@@ -94,9 +95,11 @@ def _flight(raster: PlanRaster, rng: np.random.Generator | None) -> tuple[float 
     return (at_goal if done else None), collisions, planner.records
 
 
-def plan_rollouts(indexed: tuple[int, PlanRaster]) -> dict:
-    """The greedy flight and the sampled ones on one plan; the best sampled flight's decisions if it wins."""
-    index, raster = indexed
+def plan_rollouts(indexed: tuple[int, FloorPlan]) -> dict:
+    """The greedy flight and the sampled ones on one plan (rasterized here, in the worker); the best sampled
+    flight's decisions if it wins."""
+    index, plan = indexed
+    raster = plan_to_raster(plan)
     args = _WORKER["args"]
     greedy, greedy_collisions, _ = _flight(raster, None)
     sampled = []
@@ -157,19 +160,21 @@ def main() -> None:
     shards = sorted(args.plans.glob("*.jsonl.gz"))
     if not shards:
         raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
-    plans = [plan_to_raster(p) for p in itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)]
+    plans = itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)
     args.out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     decisions = 0
     with Pool(args.workers, initializer=_init, initargs=(args,)) as pool:
         jobs = pool.imap(plan_rollouts, enumerate(plans, start=args.first))
         block: list[Record] = []
-        for row in tqdm(jobs, total=len(plans), desc="self-imitation"):
+        for row in tqdm(jobs, total=args.count, desc="self-imitation"):
             block += row.pop("records")
             rows.append(row)
-            if len(rows) % args.block == 0 or len(rows) == len(plans):
+            if len(rows) % args.block == 0:
                 decisions += _write_block(args, rows, block, decisions)
                 block = []
+        if len(rows) % args.block:
+            decisions += _write_block(args, rows, block, decisions)
     summary = json.loads((args.out / "summary.json").read_text())
     print(
         f"{len(rows)} plans: greedy {summary['greedy_mean_m']:.2f} m, best of {args.samples} sampled "

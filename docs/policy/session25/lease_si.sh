@@ -14,11 +14,12 @@ left() { echo $((BOX_S - ($(date +%s) - T0))); }
 OUT=${OUT:-runs/gpu_out}
 mkdir -p "$OUT"
 exec > >(tee "$OUT/log.txt") 2>&1
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl_goal/*.whl
+python3 -m pip install -q --upgrade --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl_goal/*.whl
+CORES=$(nproc)  # before OMP_NUM_THREADS: GNU nproc honours it (session 25's lease flew on 1 worker that way)
 export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1
-nproc; python3 -c "import torch, gymnasium, ai_edge_litert, safetensors, numpy; print(torch.__version__, numpy.__version__)"
+echo "$CORES cores"; python3 -c "import torch, gymnasium, ai_edge_litert, safetensors, numpy; print(torch.__version__, numpy.__version__)"
 SI="python3 docs/policy/session24/self_imitation.py --samples 4 --temperature 0.5 --policy $POLICY \
-    --plans runs/plans_carry --workers $(nproc)"
+    --plans runs/plans_carry --workers $CORES"
 # Runs $SI ARGS... in its own process group until the box has $1 seconds left, then ends it (finished blocks stay).
 until_left() {
     local keep=$1; shift
@@ -28,7 +29,7 @@ until_left() {
     kill -TERM -- -"$pid" 2>/dev/null; wait "$pid" 2>/dev/null
 }
 echo "== val $(date -u +%T)"
-until_left 200 --first 3220 --count 20 --block 20 --out runs/si2/val
+until_left 200 --first 3220 --count 20 --block 4 --out runs/si2/val
 echo "== train $(date -u +%T), $(left) s left"
 until_left 25 --first "$FIRST" --count 2000 --block 16 --out runs/si2/train
 echo "== pack $(date -u +%T)"
