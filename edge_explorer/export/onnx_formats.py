@@ -7,7 +7,10 @@
 * :func:`quantize_int8`: ``onnxruntime.quantization.quantize_static`` in the QDQ format (int8 activations and
   weights, per-channel weights when the recipe says so) after ``quant_pre_process`` (shape inference + graph
   optimisation), calibrated on the recipe's observations with the recipe's method (MinMax / Entropy /
-  Percentile). Inputs and outputs stay float32: the quantization lives inside the graph.
+  Percentile). Inputs and outputs stay float32: the quantization lives inside the graph. With the recipe's
+  ``onnx_float_output_conv`` the graph's last Conv (:func:`last_conv`) stays float (onnxruntime's
+  ``nodes_to_exclude``): the int8 ONNX serves CPUs, where that tiny layer costs nothing; the full-integer TFLite
+  is the Edge TPU's artifact.
 * :func:`qdq_error_report`: when a gate fails, onnxruntime's ``qdq_loss_debug`` runs the fp32 and the QDQ model on
   the held-back observations and gives every activation tensor's signal-to-quantization-noise ratio (dB), worst
   first — the tensors to look at (or exclude from quantization).
@@ -106,6 +109,15 @@ class FeedReader(CalibrationDataReader):
         self._iter = iter(self._feeds)
 
 
+def last_conv(path: Path) -> str:
+    """The name of the graph's last Conv node (in graph order): for the goal policy the windowed scores' 2 → 1
+    combination, whose int8 output step decides near-ties (``docs/policy/export_int8.md``)."""
+    convs = [node.name for node in onnx.load(str(path)).graph.node if node.op_type == "Conv"]
+    if not convs:
+        raise ValueError(f"{path}: no Conv node to leave in float (recipe onnx_float_output_conv)")
+    return convs[-1]
+
+
 def quantize_int8(fp32_path: Path, out_path: Path, feeds: Sequence[Feed], config: QuantizationConfig) -> None:
     """Static int8 QDQ quantization of ``fp32_path`` calibrated on ``feeds``; written to ``out_path``."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -120,6 +132,7 @@ def quantize_int8(fp32_path: Path, out_path: Path, feeds: Sequence[Feed], config
             weight_type=QuantType.QInt8,
             per_channel=config.per_channel,
             calibrate_method=METHODS[config.method],
+            nodes_to_exclude=[last_conv(prepared)] if config.onnx_float_output_conv else [],
             extra_options={"CalibPercentile": config.percentile, "CalibTensorRangeSymmetric": False},
         )
     model = onnx.load(str(out_path))

@@ -19,6 +19,8 @@ A recipe says what to export and how to judge it::
     method = "minmax"                       # minmax | entropy | percentile (onnxruntime's calibrators)
     per_channel = true
     percentile = 99.999                     # percentile only
+    onnx_float_output_conv = false          # int8 ONNX only: leave the graph's last Conv in float (TFLite stays
+                                            # full-integer for the Edge TPU)
 
     [formats]
     produce = ["onnx_fp32", "onnx_int8", "tflite_int8"]
@@ -79,6 +81,7 @@ class QuantizationConfig:
     method: str = "minmax"
     per_channel: bool = True
     percentile: float = 99.999
+    onnx_float_output_conv: bool = False
 
 
 @dataclass(frozen=True)
@@ -173,7 +176,12 @@ def load_recipe(path: str | Path) -> Recipe:
     percentile = float(_typed(qw, "percentile", q.get("percentile", 99.999), (int, float)))
     if not 50.0 < percentile <= 100.0:
         raise RecipeError(f"{qw}: 'percentile' must be in (50, 100], got {percentile}")
-    quantization = QuantizationConfig(method, _typed(qw, "per_channel", q.get("per_channel", True), bool), percentile)
+    quantization = QuantizationConfig(
+        method,
+        _typed(qw, "per_channel", q.get("per_channel", True), bool),
+        percentile,
+        _typed(qw, "onnx_float_output_conv", q.get("onnx_float_output_conv", False), bool),
+    )
 
     f = _table(doc, "formats", path)
     _check_keys(f"{where} [formats]", f, ("produce",))

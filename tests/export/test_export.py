@@ -69,6 +69,7 @@ def quiet(_: str) -> None:
         (lambda t: t.replace('"onnx_int8"]', '"onnx_int4"]'), "'produce' must be a non-empty list"),
         (lambda t: t.replace('model = "predictor"', 'model = "planner"'), "'model' must be one of"),
         (lambda t: t.replace("[calibration]", '[calibration]\nexplorer = "policy"'), "'explorer' for a predictor"),
+        (lambda t: t.replace("[quantization]", "[quantization]\nonnx_float_output_conv = 1"), "onnx_float_output_conv"),
     ],
 )
 def test_a_bad_recipe_is_one_line_naming_the_problem(tmp_path, edit, message):

@@ -7,7 +7,8 @@ import onnx
 import onnxruntime as ort
 from onnx import TensorProto, helper, numpy_helper
 
-from edge_explorer.export.onnx_formats import gather_to_slice
+from edge_explorer.export.onnx_formats import gather_to_slice, quantize_int8
+from edge_explorer.export.recipe import QuantizationConfig
 
 
 def test_a_constant_index_gather_becomes_slice_and_squeeze_with_the_same_values():
@@ -27,3 +28,41 @@ def test_a_constant_index_gather_becomes_slice_and_squeeze_with_the_same_values(
         assert "i" not in {t.name for t in model.graph.initializer}
         session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
         np.testing.assert_array_equal(session.run(None, {"x": x})[0], x[:, index])
+
+
+def _two_convs(path) -> None:
+    """x (1, 2, 4, 4) -> Conv 2→3 -> Relu -> Conv 3→1: a graph whose last Conv the recipe can keep float."""
+    rng = np.random.default_rng(0)
+    w1, w2 = (numpy_helper.from_array(rng.normal(size=s).astype(np.float32), n) for n, s in
+              (("w1", (3, 2, 1, 1)), ("w2", (1, 3, 1, 1))))  # fmt: skip
+    graph = helper.make_graph(
+        [
+            helper.make_node("Conv", ["x", "w1"], ["a"], name="first"),
+            helper.make_node("Relu", ["a"], ["b"], name="relu"),
+            helper.make_node("Conv", ["b", "w2"], ["y"], name="last"),
+        ],
+        "two_convs",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 2, 4, 4])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 1, 4, 4])],
+        [w1, w2],
+    )
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)]), str(path))
+
+
+def _float_conv_weights(path) -> set[str]:
+    """Conv nodes whose weight input comes straight from a float initializer (not through DequantizeLinear)."""
+    model = onnx.load(str(path))
+    initializers = {t.name for t in model.graph.initializer}
+    return {n.name for n in model.graph.node if n.op_type == "Conv" and n.input[1] in initializers}
+
+
+def test_onnx_float_output_conv_leaves_only_the_last_conv_in_float(tmp_path):
+    _two_convs(tmp_path / "fp32.onnx")
+    rng = np.random.default_rng(1)
+    feeds = [{"x": rng.normal(size=(1, 2, 4, 4)).astype(np.float32)} for _ in range(8)]
+    for keep_float, expected in ((False, set()), (True, {"last"})):
+        out = tmp_path / f"int8_{keep_float}.onnx"
+        quantize_int8(tmp_path / "fp32.onnx", out, feeds, QuantizationConfig(onnx_float_output_conv=keep_float))
+        assert _float_conv_weights(out) == expected
+        session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+        assert session.run(None, feeds[0])[0].shape == (1, 1, 4, 4)
