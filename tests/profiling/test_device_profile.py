@@ -79,7 +79,7 @@ def test_unknown_profile_lists_known(tmp_path):
 
 def test_a_model_may_have_its_own_backend_order():
     host = load_profile("host")
-    assert host.order_for("policy") == ("onnxruntime-cpu", "litert-cpu")  # measured faster here (host.toml)
+    assert host.order_for("policy") == ("litert-cpu", "onnxruntime-cpu")  # measured faster here (host.toml)
     assert host.order_for("predictor") == host.backend_order
     nuc = load_profile("nuc10-i7-10710u")
     assert nuc.model_orders == {} and nuc.order_for("policy") == nuc.backend_order

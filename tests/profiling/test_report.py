@@ -128,9 +128,9 @@ def test_report_json_html_and_markdown(measured, tmp_path):
     text = markdown_summary(doc)
     assert "## coral-usb (ESTIMATE scaled from the host)" in text and "(estimate)" in text
     assert (
-        "Backend order: predictor: edgetpu → litert-cpu → onnxruntime-cpu; policy: onnxruntime-cpu → litert-cpu" in text
+        "Backend order: predictor: edgetpu → litert-cpu → onnxruntime-cpu; policy: litert-cpu → onnxruntime-cpu" in text
     )
-    assert host_section["backend_orders"]["policy"] == ["onnxruntime-cpu", "litert-cpu"]
+    assert host_section["backend_orders"]["policy"] == ["litert-cpu", "onnxruntime-cpu"]
     assert "| policy | – | – | – | – | – | unavailable:" in text
 
 
