@@ -58,6 +58,7 @@ class BranchingPlanner(GoalPolicyPlanner):
         self.branch_at, self.branch_cell, self.record = branch_at, branch_cell, record
         self.decisions = 0
         self.records: list[dict] = []
+        self.env: ExplorationEnv | None = None  # set by _flight: each record notes the coverage it was taken at
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         fused = self.fused if self.fused is not None else view.maps.low
@@ -79,6 +80,7 @@ class BranchingPlanner(GoalPolicyPlanner):
                     "mask": decision.options.flat_mask(),
                     "scores": scores,
                     "cell": cell,
+                    "coverage": self.env._metrics.coverage,  # noqa: SLF001 - the env's coverage at this decision
                 }
             )
         return goal_at_cell(view, decision, cell)
@@ -114,6 +116,7 @@ def _flight(raster: PlanRaster, branch_at: int = -1, branch_cell: int = -1, reco
     config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
     planner = BranchingPlanner(_WORKER["policy"], env.table, branch_at, branch_cell, record)
+    planner.env = env
     at_goal, collisions, _, done = fly_run(env, planner, raster, max_steps)
     return (at_goal if done and collisions == 0 else None), planner
 
@@ -125,10 +128,12 @@ def plan_branches(indexed: tuple[int, FloorPlan]) -> dict:
     raster = plan_to_raster(plan)
     base, planner = _flight(raster, record=True)
     row: dict = {"plan": raster.name, "base": base, "decisions": planner.decisions, "points": []}
-    if base is None or planner.decisions < 2:
+    if base is None:
         return row
     rng = np.random.default_rng([args.seed, index])
-    for k in sorted(rng.choice(planner.decisions, size=min(args.branches, planner.decisions), replace=False)):
+    # only decisions taken before 95 % coverage: later ones cannot change the path at 95 %
+    early = [k for k, rec in enumerate(planner.records) if rec["coverage"] < 0.95]
+    for k in sorted(rng.choice(early, size=min(args.branches, len(early)), replace=False)):
         rec = planner.records[k]
         cells = alternatives(rec["scores"], rec["cell"], args.alternatives, args.spacing)
         paths = [_flight(raster, int(k), cell)[0] for cell in cells]
