@@ -108,14 +108,14 @@ def _init(args: argparse.Namespace) -> None:
     _WORKER.update(args=args, predictor=bench.load_predictor(args.predictor), policy=bench.load_policy(args.policy))
 
 
-def _flight(raster: PlanRaster, branch_at: int = -1, branch_cell: int = -1, record: bool = False):
+def _flight(raster: PlanRaster, branch_at: int = -1, branch_cell: int = -1, record: bool = False, planner_cls=None):
     """(path at 95 % coverage, or None when the run did not reach 95 % and 95 % correct coverage without a
     collision; the planner)."""
     predictor = _WORKER["predictor"]
     max_steps = bench.BenchConfig().max_steps
     config = EnvConfig(coverage_goal=1.0, max_steps=max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
-    planner = BranchingPlanner(_WORKER["policy"], env.table, branch_at, branch_cell, record)
+    planner = (planner_cls or BranchingPlanner)(_WORKER["policy"], env.table, branch_at, branch_cell, record)
     planner.env = env
     at_goal, collisions, _, done = fly_run(env, planner, raster, max_steps)
     return (at_goal if done and collisions == 0 else None), planner
