@@ -42,6 +42,21 @@ def paired_m(candidate: Path, base: Path) -> tuple[float, float, int]:
     return float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d))), len(d)
 
 
+def plot_rows(rows: list[dict], title: str, folder: Path, size: tuple[float, float]) -> None:
+    """``candidates.json`` and ``candidates.png`` in ``folder``: one paired mean ± s.e. per row."""
+    (folder / "candidates.json").write_text(json.dumps(rows, indent=1) + "\n")
+    fig, ax = plt.subplots(figsize=size)
+    for y, row in enumerate(rows):
+        ax.errorbar(row["mean_m"], y, xerr=row["se_m"], fmt="o", capsize=3)
+    ax.set_yticks(range(len(rows)), [f"{r['candidate']} (val {r['val']})" for r in rows], fontsize=8)
+    ax.axvline(0, color="k", lw=0.8)
+    ax.invert_yaxis()
+    ax.set(xlabel="candidate − shipped round 1: path at 95 % coverage (m, paired mean ± s.e.)", title=title)
+    ax.grid(alpha=0.3, axis="x")
+    fig.tight_layout()
+    fig.savefig(folder / "candidates.png", dpi=120)
+
+
 def main() -> None:
     rows = [
         {
@@ -52,18 +67,7 @@ def main() -> None:
         for name, sets in CANDIDATES.items()
         for val, f in sets.items()
     ]
-    (HERE / "candidates.json").write_text(json.dumps(rows, indent=1) + "\n")
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    for y, row in enumerate(rows):
-        ax.errorbar(row["mean_m"], y, xerr=row["se_m"], fmt="o", capsize=3)
-    ax.set_yticks(range(len(rows)), [f"{r['candidate']} (val {r['val']})" for r in rows], fontsize=8)
-    ax.axvline(0, color="k", lw=0.8)
-    ax.invert_yaxis()
-    ax.set(xlabel="candidate − shipped round 1: path at 95 % coverage (m, paired mean ± s.e.)",
-           title="Self-imitation rounds 2–3 and weight averages vs the shipped round 1")  # fmt: skip
-    ax.grid(alpha=0.3, axis="x")
-    fig.tight_layout()
-    fig.savefig(HERE / "candidates.png", dpi=120)
+    plot_rows(rows, "Self-imitation rounds 2–3 and weight averages vs the shipped round 1", HERE, (9, 4.5))
     print(json.dumps(rows, indent=1))
 
 

@@ -162,6 +162,15 @@ def _write_block(out: Path, block_index: int, rows: list[dict]) -> None:
     (out / f"block-{block_index:05d}.json").write_text(json.dumps(rows))
 
 
+def add_flight_args(parser: argparse.ArgumentParser) -> None:
+    """The options every branching script shares: seed, models, plan shards, worker processes."""
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--predictor", default="models/predictor")
+    parser.add_argument("--policy", default="models/policy/policy.safetensors")
+    parser.add_argument("--plans", type=Path, default=Path("data/plans/train"))
+    parser.add_argument("--workers", type=int, default=2)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--first", type=int, required=True, help="first train plan")
@@ -170,11 +179,7 @@ def main() -> None:
     parser.add_argument("--branches", type=int, default=3, help="decisions branched per plan")
     parser.add_argument("--alternatives", type=int, default=3, help="other goal cells tried per branched decision")
     parser.add_argument("--spacing", type=int, default=2, help="goal cells between tried cells (Chebyshev)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--predictor", default="models/predictor")
-    parser.add_argument("--policy", default="models/policy/policy.safetensors")
-    parser.add_argument("--plans", type=Path, default=Path("data/plans/train"))
-    parser.add_argument("--workers", type=int, default=2)
+    add_flight_args(parser)
     parser.add_argument("--block", type=int, default=8, help="plans per written block")
     args = parser.parse_args()
     shards = sorted(args.plans.glob("*.jsonl.gz"))

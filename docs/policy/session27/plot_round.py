@@ -12,16 +12,12 @@ import json
 import sys
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 DOCS = HERE.parent
 sys.path.insert(0, str(DOCS / "session26"))
-from plot_candidates import BASE, paired_m  # noqa: E402
+from plot_candidates import BASE, paired_m, plot_rows  # noqa: E402
 
 CANDIDATES = {
     "C1: branch labels only (352)": {"40–135": "session27/s27_C1.json"},
@@ -55,18 +51,7 @@ def main() -> None:
         for name, sets in CANDIDATES.items()
         if len(sets) > 1
     ]
-    (HERE / "candidates.json").write_text(json.dumps(rows, indent=1) + "\n")
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    for y, row in enumerate(rows):
-        ax.errorbar(row["mean_m"], y, xerr=row["se_m"], fmt="o", capsize=3)
-    ax.set_yticks(range(len(rows)), [f"{r['candidate']} (val {r['val']})" for r in rows], fontsize=8)
-    ax.axvline(0, color="k", lw=0.8)
-    ax.invert_yaxis()
-    ax.set(xlabel="candidate − shipped round 1: path at 95 % coverage (m, paired mean ± s.e.)",
-           title="Per-decision branch credit (one rollout per goal) vs the shipped round 1")  # fmt: skip
-    ax.grid(alpha=0.3, axis="x")
-    fig.tight_layout()
-    fig.savefig(HERE / "candidates.png", dpi=120)
+    plot_rows(rows, "Per-decision branch credit (one rollout per goal) vs the shipped round 1", HERE, (9, 3.5))
     print(json.dumps(rows, indent=1))
 
 
