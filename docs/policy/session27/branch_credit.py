@@ -171,17 +171,29 @@ def add_flight_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_branch_args(parser: argparse.ArgumentParser, spacing: int) -> None:
+    """The options of a branching collection: which train plans, where to, how many branches, plus
+    :func:`add_flight_args`."""
     parser.add_argument("--first", type=int, required=True, help="first train plan")
     parser.add_argument("--count", type=int, required=True)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--branches", type=int, default=3, help="decisions branched per plan")
     parser.add_argument("--alternatives", type=int, default=3, help="other goal cells tried per branched decision")
-    parser.add_argument("--spacing", type=int, default=2, help="goal cells between tried cells (Chebyshev)")
-    add_flight_args(parser)
+    parser.add_argument("--spacing", type=int, default=spacing, help="goal cells between tried cells (Chebyshev)")
     parser.add_argument("--block", type=int, default=8, help="plans per written block")
-    args = parser.parse_args()
+    add_flight_args(parser)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_branch_args(parser, spacing=2)
+    run_blocks(parser.parse_args(), _indexed, _write_block, "branch credit")
+
+
+def run_blocks(args: argparse.Namespace, plan_fn, write_block, desc: str) -> None:
+    """Run ``plan_fn((index, plan)) -> (index, row)`` over train plans ``--first`` … ``--first + --count`` in
+    ``--workers`` processes and hand each finished block of ``--block`` rows to ``write_block(out, start, rows)``;
+    blocks whose ``block-*.json`` exists are skipped (a rerun resumes)."""
     shards = sorted(args.plans.glob("*.jsonl.gz"))
     if not shards:
         raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
@@ -197,11 +209,11 @@ def main() -> None:
     )
     with Pool(args.workers, initializer=_init, initargs=(args,)) as pool:
         rows: list[dict] = []
-        for index, row in tqdm(pool.imap(_indexed, work), total=len(todo) * args.block, desc="branch credit"):
+        for index, row in tqdm(pool.imap(plan_fn, work), total=len(todo) * args.block, desc=desc):
             rows.append(row)
             start = args.first + (index - args.first) // args.block * args.block
             if index == min(start + args.block, args.first + args.count) - 1:
-                _write_block(args.out, start, rows)
+                write_block(args.out, start, rows)
                 rows = []
 
 

@@ -19,18 +19,14 @@ from __future__ import annotations
 
 import argparse
 import functools
-import itertools
 import json
-from multiprocessing import Pool
 from pathlib import Path
 
 import branch_credit as bc
 import numpy as np
 from noise_probe import ReseedingPlanner
-from tqdm import tqdm
 
 from edge_explorer.world.catalog import plan_to_raster
-from edge_explorer.world.dataset import iter_shard_plans
 from edge_explorer.world.plan import FloorPlan
 
 
@@ -89,36 +85,10 @@ def _write_block(out: Path, block_index: int, rows: list[dict]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--first", type=int, required=True, help="first train plan")
-    parser.add_argument("--count", type=int, required=True)
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--branches", type=int, default=3, help="decisions branched per plan")
-    parser.add_argument("--alternatives", type=int, default=3, help="goal cells tried besides the greedy one")
-    parser.add_argument("--spacing", type=int, default=3, help="goal cells between tried cells (Chebyshev)")
+    bc.add_branch_args(parser, spacing=3)
     parser.add_argument("--reseeds", type=int, default=1, help="flights per tried cell, noise reseeded")
     parser.add_argument("--anchors", type=int, default=4, help="decisions per base flight kept for distillation")
-    bc.add_flight_args(parser)
-    parser.add_argument("--block", type=int, default=8, help="plans per written block")
-    args = parser.parse_args()
-    shards = sorted(args.plans.glob("*.jsonl.gz"))
-    if not shards:
-        raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "args.json").write_text(json.dumps({k: str(v) for k, v in vars(args).items()}, indent=1))
-    blocks = range(args.first, args.first + args.count, args.block)
-    todo = {s for s in blocks if not (args.out / f"block-{s:05d}.json").is_file()}
-    plans = itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)
-    start_of = lambda i: args.first + (i - args.first) // args.block * args.block  # noqa: E731
-    work = ((i, p) for i, p in enumerate(plans, start=args.first) if start_of(i) in todo)
-    with Pool(args.workers, initializer=bc._init, initargs=(args,)) as pool:
-        rows: list[dict] = []
-        for index, row in tqdm(
-            pool.imap(functools.partial(_indexed), work), total=len(todo) * args.block, desc="branch Q"
-        ):
-            rows.append(row)
-            if index == min(start_of(index) + args.block, args.first + args.count) - 1:
-                _write_block(args.out, start_of(index), rows)
-                rows = []
+    bc.run_blocks(parser.parse_args(), _indexed, _write_block, "branch Q")
 
 
 def _indexed(indexed: tuple[int, FloorPlan]) -> tuple[int, dict]:

@@ -147,8 +147,16 @@ def main() -> None:
         log.append(loss.item())
     save_goal_net(model.eval(), args.out / "checkpoint.safetensors")
     (args.out / "summary.json").write_text(
-        json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "decisions": n, "branched": points,
-                    "loss_first_50": float(np.mean(log[:50])), "loss_last_50": float(np.mean(log[-50:]))}, indent=1)
+        json.dumps(
+            {
+                "args": {k: str(v) for k, v in vars(args).items()},
+                "decisions": n,
+                "branched": points,
+                "loss_first_50": float(np.mean(log[:50])),
+                "loss_last_50": float(np.mean(log[-50:])),
+            },
+            indent=1,
+        )
     )
     print(f"loss {np.mean(log[:50]):.3f} -> {np.mean(log[-50:]):.3f}; wrote {args.out / 'checkpoint.safetensors'}")
 
