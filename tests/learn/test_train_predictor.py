@@ -85,6 +85,22 @@ def test_quantization_aware_training_resumes_exactly_and_differs_from_plain(shar
     assert any(not bool((a[k] == plain[k]).all()) for k in a)
 
 
+def test_bfloat16_on_the_cpu_resumes_exactly_differs_from_fp32_and_says_so(shard_dir, tmp_path):
+    config = _config(shard_dir)
+    train(config, tmp_path / "straight", precision="bf16")
+    train(config, tmp_path / "split", max_steps=1, precision="bf16")
+    train(config, tmp_path / "split", resume=True, precision="bf16")
+    train(config, tmp_path / "fp32", precision="fp32")
+    a, b, fp32 = (load_file(str(tmp_path / run / "checkpoint.safetensors")) for run in ("straight", "split", "fp32"))
+    assert all(bool((a[k] == b[k]).all()) for k in a)
+    assert any(not bool((a[k] == fp32[k]).all()) for k in a)
+    stretches = json.loads((tmp_path / "split" / "state.json").read_text())["stretches"]
+    assert all("bfloat16 autocast" in s["hardware"] for s in stretches)
+    assert "bfloat16" not in json.loads((tmp_path / "fp32" / "state.json").read_text())["stretches"][0]["hardware"]
+    with pytest.raises(EdgeExplorerError, match="precision 'fp16'"):
+        train(config, tmp_path / "bad", precision="fp16")
+
+
 def test_loader_workers_build_the_same_batches_as_the_loop(shard_dir, tmp_path):
     config = _config(shard_dir, total_steps=3)
     train(config, tmp_path / "inline")
