@@ -331,8 +331,8 @@ def train(
     (both checkpointed), for time-boxed sessions. ``loader_workers`` processes build the batches (the same
     batches; what keeps a GPU busy). ``precision`` "bf16" runs the forward pass in bfloat16 autocast (mixed precision;
     the weights, optimizer and loss stay float32), "fp32" does not, "auto" (default) does on CUDA only. On a CPU with
-    native bfloat16 (AVX512-BF16 or AMX) "bf16" trains ~1.6x faster (docs/predictor/at_scale.md, session 29). Under torchrun every rank calls this; only rank 0 validates and
-    writes into ``out``.
+    native bfloat16 (AVX512-BF16 or AMX) "bf16" trains ~1.6x faster (docs/predictor/at_scale.md, session 29).
+    Under torchrun every rank calls this; only rank 0 validates and writes into ``out``.
     """
     from tqdm import tqdm
 
