@@ -1,6 +1,7 @@
 """Predictor training: TOML config, a 2-step run on a tiny dataset, exact resume, refusals."""
 
 import json
+from pathlib import Path
 
 import pytest
 from safetensors.torch import load_file
@@ -30,6 +31,12 @@ def _config(shard_dir, **overrides) -> PredictorTrainConfig:
 def test_default_config_file_loads():
     config = load_config("edge_explorer/learn/configs/predictor.toml")
     assert config.channels == (12, 24, 48, 96, 128) and config.exterior_weight == 0.1
+
+
+@pytest.mark.parametrize("path", sorted(Path("edge_explorer/learn/configs").glob("predictor*.toml")), ids=str)
+def test_every_bundled_predictor_config_loads(path):
+    config = load_config(path)
+    assert config.total_steps > config.warmup_steps and config.unet.channels == config.channels
 
 
 def test_config_errors_name_the_key(tmp_path):
