@@ -62,7 +62,9 @@ def _init(args: argparse.Namespace) -> None:
 
     torch.set_num_threads(1)
     policy = bench.load_policy(args.policy)
-    _WORKER.update(args=args, predictor=bench.load_predictor(args.predictor), policy=MirrorAveraged(policy, args.weight))
+    _WORKER.update(
+        args=args, predictor=bench.load_predictor(args.predictor), policy=MirrorAveraged(policy, args.weight)
+    )
 
 
 def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
