@@ -187,13 +187,15 @@ def choose_action(
     free: FreeSpace,
     config: FollowConfig = FollowConfig(),
     final_yaw_rad: float | None = None,
+    blocked_actions: frozenset[int] = frozenset(),
 ) -> int | None:
     """The action that best advances along ``path_xy_m`` ((N, 2) metres, from near the vehicle to the goal).
 
     Returns ``None`` once the vehicle has :func:`arrived`. Among the two-action sequences whose mean motions are
     safe (see the module docstring) it picks the first action of the one with the lowest summed pursuit cost of its
     two poses, preferring sequences whose first step is robust to motion noise. Hover
-    when no sequence is safe (a state the follower's own choices never lead to).
+    when no sequence is safe (a state the follower's own choices never lead to). ``blocked_actions`` are first
+    actions known to be blocked from this very pose (a collision the map does not explain: the caller's memory).
     """
     path = np.asarray(path_xy_m, dtype=np.float64).reshape(-1, 2)
     if arrived(pose, path, final_yaw_rad, config):
@@ -225,7 +227,7 @@ def choose_action(
                 return False
         return True
 
-    first = {a: safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
+    first = {a: None if a in blocked_actions else safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
     robust_first = {a: end is not None and within_noise(a, end) for a, end in first.items()}
     best_action, best_cost = int(Action.HOVER), math.inf
     best_robust = False

@@ -289,15 +289,19 @@ class GoalPlanner:
         self._retreats_left = _MAX_RETREATS
         self._hover_run = 0  # hovers in a row, whatever the goal
         self._last_targets: np.ndarray | None = None  # target cells of the latest goal
+        self._last_command: tuple[Pose, int] | None = None  # the pose of the latest call and the action returned
+        self._blocked: dict[Pose, set[int]] = {}  # actions that collided from exactly this pose (see act)
 
     def reset(self) -> None:
-        """Forget the goal and the dropped targets (a new flight)."""
+        """Forget the goal, the dropped targets and the blocked motions (a new flight)."""
         self._goal = None
         self._dropped = None
         self._spin_steps_left = None
         self._retreats_left = _MAX_RETREATS
         self._hover_run = 0
         self._last_targets = None
+        self._last_command = None
+        self._blocked = {}
         self.replans = 0
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
@@ -317,9 +321,23 @@ class GoalPlanner:
     def act(
         self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
     ) -> int | None:
+        """The next action at ``pose``, given the motion the vehicle carries into this step (``previous_action``:
+        HOVER after a collision, which stops the vehicle where it was).
+
+        A motion answered by HOVER at exactly the same pose was not flown from there: in the simulator it collided
+        with something the observed map does not show (a wall the sensor has not seen yet can lie within the robot
+        radius of cells it saw free); in the daemon its safety check replaced it by hover. The same map would choose
+        the same motion again, step after step (in the simulator a vehicle pinned against a wall: 43 collisions in
+        one val flight), so that action is blocked from that exact pose until the vehicle moves."""
+        pose = (float(pose[0]), float(pose[1]), float(pose[2]))
+        if self._last_command is not None:
+            last_pose, last_action = self._last_command
+            if last_action != Action.HOVER and previous_action == Action.HOVER and pose == last_pose:
+                self._blocked.setdefault(pose, set()).add(last_action)
         view = self.view(maps, pose, fused_low)
         action = self._act(view, pose, previous_action)
         self._hover_run = self._hover_run + 1 if action == Action.HOVER else 0
+        self._last_command = None if action is None else (pose, action)
         return action
 
     def _act(self, view: View, pose: Pose, previous_action: int) -> int | None:
@@ -348,7 +366,14 @@ class GoalPlanner:
             assert goal is not None
             self._last_targets = goal.target_cells
             action = choose_action(
-                self.table, pose, previous_action, goal.path_xy_m, view.free, self.config.follow, goal.yaw_rad
+                self.table,
+                pose,
+                previous_action,
+                goal.path_xy_m,
+                view.free,
+                self.config.follow,
+                goal.yaw_rad,
+                frozenset(self._blocked.get(pose, ())),
             )
             goal.hovers = goal.hovers + 1 if action == Action.HOVER else 0
             if action is not None and goal.hovers <= _MAX_HOVERS:
@@ -409,7 +434,14 @@ class GoalPlanner:
         self._spin_steps_left -= 1
         here = np.array([pose[:2]])
         action = choose_action(
-            self.table, pose, previous_action, here, view.free, self.config.follow, pose[2] + math.pi / 2
+            self.table,
+            pose,
+            previous_action,
+            here,
+            view.free,
+            self.config.follow,
+            pose[2] + math.pi / 2,
+            frozenset(self._blocked.get(pose, ())),
         )
         return 0 if action is None else action
 

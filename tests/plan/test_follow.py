@@ -60,6 +60,17 @@ def test_follows_a_path_through_the_door(rooms, table):
         assert not dynamics.swept_path_blocked(blocked, raster.grid, a[:2], b[:2])
 
 
+def test_blocked_actions_are_never_chosen(rooms, table):
+    _, free = rooms
+    pose, path = (1.0, 1.5, 0.0), np.array([[1.0, 1.5], [3.0, 1.5]])
+    blocked: set[int] = set()
+    for _ in range(3):
+        action = choose_action(table, pose, Action.HOVER, path, free, blocked_actions=frozenset(blocked))
+        assert action is not None and action not in blocked
+        blocked.add(action)
+    assert choose_action(table, pose, Action.HOVER, path, free, blocked_actions=frozenset(range(1, 6))) == Action.HOVER
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_never_picks_a_motion_into_a_wall(rooms, table, seed):
     """From random poses near walls, with targets beyond them, the chosen action's mean motion stays clear."""

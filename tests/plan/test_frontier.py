@@ -164,3 +164,38 @@ def test_hovering_in_the_open_keeps_the_goal_loop(rooms, monkeypatch):
     monkeypatch.setattr(frontier, "choose_action", real_choose)
     planner.act(maps, pose, 0)
     assert planner._goal is None or not planner._goal.retreat
+
+
+def test_a_motion_that_left_the_vehicle_where_it_was_is_not_flown_again_from_there(rooms):
+    """A collision stops the vehicle where it was (previous action HOVER, same pose). The map did not show what it
+    hit (a wall not yet seen can lie within the robot radius of cells seen free), so the same map would choose the
+    same motion again, step after step: a val flight made 43 collisions that way. It is blocked from that pose."""
+    from edge_explorer.sim.dynamics import Action
+
+    planner = NearestFrontier()
+    maps, pose = west_room_seen(rooms), (0.6, 0.6, 0.0)
+    first = planner.act(maps, pose, Action.HOVER)
+    assert first not in (None, Action.HOVER)
+    second = planner.act(maps, pose, Action.HOVER)  # it collided: stopped, nothing seen changed
+    assert second is not None and second != first
+    third = planner.act(maps, pose, Action.HOVER)
+    assert third not in (first, second) or third == Action.HOVER
+    moved = (pose[0] + 0.05, pose[1], pose[2])
+    assert planner.act(maps, moved, first) is not None  # a vehicle that moved flies on as before
+    planner.reset()
+    assert planner.act(maps, pose, Action.HOVER) == first  # a new flight forgets
+
+
+def test_a_commanded_hover_is_not_a_collision(rooms, monkeypatch):
+    from edge_explorer.plan import frontier
+    from edge_explorer.sim.dynamics import Action
+
+    planner = NearestFrontier()
+    maps, pose = west_room_seen(rooms), (0.6, 0.6, 0.0)
+    real_choose = frontier.choose_action
+    monkeypatch.setattr(frontier, "choose_action", lambda *a, **k: Action.HOVER)
+    assert planner.act(maps, pose, Action.HOVER) == Action.HOVER
+    monkeypatch.setattr(frontier, "choose_action", real_choose)
+    assert planner._blocked == {}
+    free_choice = NearestFrontier().act(maps, pose, Action.HOVER)
+    assert planner.act(maps, pose, Action.HOVER) == free_choice
