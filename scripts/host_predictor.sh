@@ -7,7 +7,7 @@
 # Run it niced in the background at the start of a session:
 #   nohup nice -n 5 bash scripts/host_predictor.sh > runs/host_predictor.log 2>&1 &
 set -euo pipefail
-SHARDS=${SHARDS:-400}
+SHARDS=${SHARDS:-250}
 MINUTES=${MINUTES:-150}
 WORKERS=${WORKERS:-$(nproc)}
 PRECISION=${PRECISION:-bf16}
