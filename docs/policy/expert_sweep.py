@@ -150,6 +150,34 @@ def fly_run(
     return at_goal, collisions, steps_at_goal, False
 
 
+def add_sweep_args(parser: argparse.ArgumentParser) -> None:
+    """The options every policy sweep script shares (``--name`` and the plans, models and workers of
+    :func:`fly_sweep`)."""
+    parser.add_argument("--name", required=True, help="the sweep's name (runs/expert_sweep/NAME.json)")
+    parser.add_argument("--first", type=int, default=40, help="first val plan")
+    parser.add_argument("--count", type=int, default=96)
+    parser.add_argument("--predictor", default="models/predictor")
+    parser.add_argument("--policy", default="models/policy/policy.safetensors")
+    parser.add_argument("--plans", type=Path, default=Path("data/plans/val"), help="the val split's shards")
+    parser.add_argument("--workers", type=int, default=1)
+
+
+def fly_sweep(args: argparse.Namespace, fly, initializer, initargs: tuple = ()) -> list:
+    """Fly ``fly`` (a raster → row function) over val plans ``args.first`` … ``args.first + args.count − 1`` of
+    ``args.plans`` in ``args.workers`` processes set up by ``initializer(*initargs)``; writes the rows with ``args``
+    to ``runs/expert_sweep/{args.name}.json`` (the files :func:`compare` pairs) and returns them."""
+    shards = sorted(Path(args.plans).glob("*.jsonl.gz"))
+    if not shards:
+        raise SystemExit(f"{args.plans}: no plan shards; generate them with `edge-explorer plans generate`")
+    plans = [plan_to_raster(p) for p in itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)]
+    with Pool(args.workers, initializer=initializer, initargs=initargs) as pool:
+        runs = list(tqdm(pool.imap(fly, plans), total=len(plans), desc=args.name))
+    out = _sweep_path(args.name)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "runs": runs}))
+    return runs
+
+
 def compare(name_a: str, name_b: str) -> str:
     """Paired path at 95 % of two sweeps ``runs/expert_sweep/{A,B}.json`` over the plans both reached it on."""
     for name in (name_a, name_b):

@@ -230,8 +230,19 @@ class PredictiveFrontier(GoalPlanner):
         if start < 0:
             return None
         cost, predecessors = graph.search([start])
-        cost = cost[0]
-        low_grid = view.maps.low_grid
+        options, paths_m, gains = self.cluster_options(view, cost[0])
+        pick = choose_cluster(paths_m, gains, self.predictive)
+        if pick is None:  # no fused frontier reachable: the observed one may still be
+            observed = frontier_mask(view.maps.low) & ~self.dropped(view.maps)
+            return nearest_frontier_goal(view, pose, observed, self.config.goal_radius_m)
+        return self.cluster_goal(view, predecessors[0], *options[pick])
+
+    def cluster_options(
+        self, view: View, cost_m: np.ndarray
+    ) -> tuple[list[tuple[int, np.ndarray]], np.ndarray, np.ndarray]:
+        """The goal candidates: per frontier cluster reachable along the graph (``cost_m``: graph cost of every node
+        from the vehicle), its goal node with the cluster's cells, and each one's path (m) and gain (cells)."""
+        graph, low_grid = view.graph, view.maps.low_grid
         fused = self._fused if self._fused is not None else view.maps.low
         unknown = fused == UNKNOWN
         blocking = fused == OCCUPIED
@@ -242,23 +253,23 @@ class PredictiveFrontier(GoalPlanner):
             mask = np.zeros(view.frontier.shape, dtype=bool)
             mask.flat[cells] = True
             candidates = goal_candidates(view, mask, self.config.goal_radius_m)
-            candidates = candidates[np.isfinite(cost[candidates])]
+            candidates = candidates[np.isfinite(cost_m[candidates])]
             if len(candidates) == 0:
                 continue
-            node = int(candidates[np.argmin(cost[candidates])])
+            node = int(candidates[np.argmin(cost_m[candidates])])
             seen = visible_unknown(
                 graph.node_xy_m([node])[0], unknown, blocking, low_grid, self.predictive.sensor.range_m
             )
             options.append((node, cells))
-            paths_m.append(float(cost[node]))
+            paths_m.append(float(cost_m[node]))
             gains.append(len(seen))
-        pick = choose_cluster(np.array(paths_m), np.array(gains), self.predictive)
-        chosen = None if pick is None else options[pick]
-        if chosen is None:  # no fused frontier reachable: the observed one may still be
-            observed = frontier_mask(view.maps.low) & ~self.dropped(view.maps)
-            return nearest_frontier_goal(view, pose, observed, self.config.goal_radius_m)
-        node, cells = chosen
-        path = graph.path_xy_m(predecessors[0], node)
+        return options, np.array(paths_m), np.array(gains)
+
+    def cluster_goal(self, view: View, predecessors: np.ndarray, node: int, cells: np.ndarray) -> Goal:
+        """The goal of one cluster option: the graph path to its node (``predecessors``: the search's row from the
+        vehicle), facing the cluster's centre, done when :attr:`PredictiveConfig.done_fraction` of it is seen."""
+        low_grid = view.maps.low_grid
+        path = view.graph.path_xy_m(predecessors, node)
         cx, cy = low_grid.center_of(*np.divmod(cells, low_grid.shape[1]))
         yaw = math.atan2(float(cy.mean()) - path[-1, 1], float(cx.mean()) - path[-1, 0])
         return Goal(path, yaw, cells, done_fraction=self.predictive.done_fraction)

@@ -16,34 +16,23 @@ node. Everything else (near-fallback picks, fallbacks, the goal built for a clus
 from __future__ import annotations
 
 import argparse
-import itertools
-import json
-import math
-from multiprocessing import Pool
-from pathlib import Path
 
 import numpy as np
-from expert_sweep import fly_run
-from tqdm import tqdm
+from expert_sweep import add_sweep_args, fly_run, fly_sweep
 
 from edge_explorer.bench import explore as bench
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import (
     Goal,
     View,
-    frontier_clusters,
     frontier_mask,
-    goal_candidates,
     nearest_frontier_goal,
 )
 from edge_explorer.plan.goal_grid import ego_goal_cells
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner, goal_decision, weighted_scores
-from edge_explorer.plan.predictive import choose_cluster, visible_unknown
+from edge_explorer.plan.predictive import choose_cluster
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.world.catalog import plan_to_raster
-from edge_explorer.world.dataset import iter_shard_plans
-from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 from edge_explorer.world.raster import PlanRaster
 
 _WORKER: dict = {}
@@ -60,28 +49,12 @@ class TieBreakPlanner(GoalPolicyPlanner):
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         if not view.frontier.any():
             return None
-        graph, low_grid, cfg = view.graph, view.maps.low_grid, self.predictive
+        graph, cfg = view.graph, self.predictive
         start = graph.node_at(*pose[:2])
         if start < 0:
             return None
         cost, predecessors = graph.search([start])
-        cost = cost[0]
-        fused = self.fused if self.fused is not None else view.maps.low
-        unknown, blocking = fused == UNKNOWN, fused == OCCUPIED
-        options, paths_m, gains = [], [], []
-        for cells in frontier_clusters(view.frontier, low_grid, cfg.cluster_max_radius_m):
-            mask = np.zeros(view.frontier.shape, dtype=bool)
-            mask.flat[cells] = True
-            candidates = goal_candidates(view, mask, self.config.goal_radius_m)
-            candidates = candidates[np.isfinite(cost[candidates])]
-            if len(candidates) == 0:
-                continue
-            node = int(candidates[np.argmin(cost[candidates])])
-            seen = visible_unknown(graph.node_xy_m([node])[0], unknown, blocking, low_grid, cfg.sensor.range_m)
-            options.append((node, cells))
-            paths_m.append(float(cost[node]))
-            gains.append(len(seen))
-        paths, gain = np.array(paths_m), np.array(gains)
+        options, paths, gain = self.cluster_options(view, cost[0])
         pick = choose_cluster(paths, gain, cfg)
         if pick is None:
             observed = frontier_mask(view.maps.low) & ~self.dropped(view.maps)
@@ -89,20 +62,16 @@ class TieBreakPlanner(GoalPolicyPlanner):
         self.decisions += 1
         worth = gain >= cfg.min_gain_cells
         if worth[pick]:  # a near-fallback pick (a low-gain cluster on the way) stays the expert's
-            tied = np.flatnonzero(
-                worth & (paths + cfg.cost_offset_m <= (1 + self.tie) * (paths[pick] + cfg.cost_offset_m))
-            )
+            near = paths + cfg.cost_offset_m <= (1 + self.tie) * (paths[pick] + cfg.cost_offset_m)
+            tied = np.flatnonzero(worth & near)
             if len(tied) > 1:
                 self.ties += 1
+                fused = self.fused if self.fused is not None else view.maps.low
                 choice = self.policy_choice(view, pose, fused, [options[i][0] for i in tied])
                 if choice is not None and tied[choice] != pick:
                     self.changed += 1
                     pick = int(tied[choice])
-        node, cells = options[pick]
-        path = graph.path_xy_m(predecessors[0], node)
-        cx, cy = low_grid.center_of(*np.divmod(cells, low_grid.shape[1]))
-        yaw = math.atan2(float(cy.mean()) - path[-1, 1], float(cx.mean()) - path[-1, 0])
-        return Goal(path, yaw, cells, done_fraction=cfg.done_fraction)
+        return self.cluster_goal(view, predecessors[0], *options[pick])
 
     def policy_choice(self, view: View, pose: Pose, fused: np.ndarray, nodes: list[int]) -> int | None:
         """Index into ``nodes`` of the one the policy scores highest, or None when it scores none of them."""
@@ -141,27 +110,16 @@ def fly(raster: PlanRaster) -> tuple:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--name", required=True)
+    add_sweep_args(parser)
     parser.add_argument("--tie", type=float, required=True, help="relative score margin that counts as a near-tie")
-    parser.add_argument("--first", type=int, default=40)
-    parser.add_argument("--count", type=int, default=96)
-    parser.add_argument("--predictor", default="models/predictor")
-    parser.add_argument("--policy", default="models/policy/policy.safetensors")
-    parser.add_argument("--plans", type=Path, default=Path("data/plans/val"))
-    parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    shards = sorted(args.plans.glob("*.jsonl.gz"))
-    plans = [plan_to_raster(p) for p in itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)]
-    with Pool(args.workers, initializer=_init, initargs=(args,)) as pool:
-        runs = list(tqdm(pool.imap(fly, plans), total=len(plans), desc=args.name))
-    out = Path("runs/expert_sweep") / f"{args.name}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "runs": runs}))
+    runs = fly_sweep(args, fly, _init, (args,))
     paths = [r[1] for r in runs if r[1] is not None]
     decisions, ties, changed = (sum(r[k] for r in runs) for k in (4, 5, 6))
     print(
         f"{args.name}: mean path at 95 % {np.mean(paths):.2f} m, reached {len(paths)}/{len(runs)}, collisions "
-        f"{sum(r[2] for r in runs)}; {decisions} decisions, {ties} near-ties, {changed} picks changed -> {out}"
+        f"{sum(r[2] for r in runs)}; {decisions} decisions, {ties} near-ties, {changed} picks changed "
+        f"-> runs/expert_sweep/{args.name}.json"
     )
 
 

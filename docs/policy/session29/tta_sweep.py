@@ -14,21 +14,14 @@ the sweep pairs with the stored sweeps::
 from __future__ import annotations
 
 import argparse
-import itertools
-import json
-from multiprocessing import Pool
-from pathlib import Path
 
 import numpy as np
-from expert_sweep import fly_run
-from tqdm import tqdm
+from expert_sweep import add_sweep_args, fly_run, fly_sweep
 
 from edge_explorer.bench import explore as bench
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.world.catalog import plan_to_raster
-from edge_explorer.world.dataset import iter_shard_plans
 from edge_explorer.world.raster import PlanRaster
 
 MIRRORED_ACTION = np.array([0, 2, 1, 3, 5, 4])  # hover, right<->left, forward, right+fwd<->left+fwd
@@ -81,26 +74,14 @@ def fly(raster: PlanRaster) -> tuple[str, float | None, int, int | None]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--name", required=True)
+    add_sweep_args(parser)
     parser.add_argument("--weight", type=float, default=0.5, help="share of the mirrored scores (0 = the policy)")
-    parser.add_argument("--first", type=int, default=40)
-    parser.add_argument("--count", type=int, default=96)
-    parser.add_argument("--predictor", default="models/predictor")
-    parser.add_argument("--policy", default="models/policy/policy.safetensors")
-    parser.add_argument("--plans", type=Path, default=Path("data/plans/val"))
-    parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    shards = sorted(args.plans.glob("*.jsonl.gz"))
-    plans = [plan_to_raster(p) for p in itertools.islice(iter_shard_plans(shards), args.first, args.first + args.count)]
-    with Pool(args.workers, initializer=_init, initargs=(args,)) as pool:
-        runs = list(tqdm(pool.imap(fly, plans), total=len(plans), desc=args.name))
-    out = Path("runs/expert_sweep") / f"{args.name}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "runs": runs}))
+    runs = fly_sweep(args, fly, _init, (args,))
     paths = [r[1] for r in runs if r[1] is not None]
     print(
         f"{args.name}: mean path at 95 % {np.mean(paths):.2f} m, reached {len(paths)}/{len(runs)}, collisions "
-        f"{sum(r[2] for r in runs)} -> {out}"
+        f"{sum(r[2] for r in runs)} -> runs/expert_sweep/{args.name}.json"
     )
 
 
