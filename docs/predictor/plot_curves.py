@@ -57,13 +57,13 @@ def main(out: Path, hardware: str, stretches: list[str]) -> None:
         captions.append(f"{k + 1} = {label}")
         offset_samples, offset_wall = samples[-1], wall[-1]
     axes[0].set_xlabel("training samples seen")
-    axes[1].set_xlabel(f"training wall time on the {hardware} (s; validation excluded)")
+    axes[1].set_xlabel("training wall time (s; validation excluded)")
     for ax in axes:
         ax.set_ylabel("val F1 (observed + thresholded prediction)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.suptitle(
-        f"Map predictor on a lent {hardware}: val F1 per true-coverage bin (512 val samples, default thresholds)"
+        f"Map predictor on the {hardware}: val F1 per true-coverage bin (512 val samples, default thresholds)"
     )
     fig.text(0.01, 0.01, "stretches: " + "; ".join(captions), fontsize=8, wrap=True)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
