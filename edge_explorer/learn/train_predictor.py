@@ -52,7 +52,7 @@ import torch.nn.functional as F
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn import ddp, toml_config
-from edge_explorer.learn.csv_log import append_csv_row
+from edge_explorer.learn.csv_log import append_csv_row, drop_rows_after
 from edge_explorer.learn.fake_quant import attach_fake_quant
 from edge_explorer.learn.hardware import hardware_description
 from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
@@ -377,6 +377,9 @@ def train(
         attach_fake_quant(model)  # for the whole run, validation included: the model is selected as int8 runs it
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     state = load_checkpoint(out, model, optimizer, device) if resume else TrainState(train_set_size=len(train_set))
+    if resume and ranks.is_main:
+        for log in ("train_log.csv", "val_log.csv"):
+            drop_rows_after(out / log, state.step)  # rows of a stretch killed after its last checkpoint
     if state.train_set_size != len(train_set):
         raise EdgeExplorerError(
             f"{out}: the run trained on {state.train_set_size} samples, {config.train_data} now "

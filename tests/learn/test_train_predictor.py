@@ -124,6 +124,18 @@ def test_a_wall_time_box_stops_with_a_checkpoint_that_resumes(shard_dir, tmp_pat
     assert train(config, tmp_path, resume=True).step == 3
 
 
+def test_a_resume_drops_log_rows_a_killed_stretch_wrote_after_its_checkpoint(shard_dir, tmp_path):
+    config = _config(shard_dir, total_steps=3)
+    train(config, tmp_path / "straight")
+    train(config, tmp_path / "split", max_steps=1)
+    with (tmp_path / "split" / "train_log.csv").open("a") as fh:
+        fh.write("2,0,4,0.001,9.9,1.0\n")  # logged, then killed before the step-2 checkpoint
+    train(config, tmp_path / "split", resume=True)
+    straight, split = ((tmp_path / run / "train_log.csv").read_text().splitlines() for run in ("straight", "split"))
+    assert [row.split(",")[0] for row in split] == [row.split(",")[0] for row in straight] == ["step", "1", "2", "3"]
+    assert "9.9" not in "".join(split)
+
+
 def test_resume_refuses_another_config(shard_dir, tmp_path):
     train(_config(shard_dir), tmp_path, max_steps=1)
     with pytest.raises(EdgeExplorerError, match="another config"):
