@@ -24,6 +24,10 @@ least the robot radius plus a margin for the motion noise (the complement of the
 plus the margin), for the motion itself and for the drift that braking after it still causes — so the vehicle can
 always stop. If sensor noise puts the vehicle inside that band, motions that do not bring it closer to an obstacle
 stay allowed, so it can fly out again. Unknown cells count as unsafe: the vehicle only flies where it has seen.
+And its mean motions keep the centre ``unseen_clearance_m`` (the robot radius) from every unknown cell, so the body
+never sweeps over space the sensor has not seen: the camera looks ±43° ahead, and a turn-and-forward along a wall it
+has not seen yet would otherwise hit it (docs/policy/goal_policy.md, session 30). Here too, a vehicle that is already
+closer may fly anywhere that does not bring it closer still.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import numpy as np
 
 from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable, body_to_map, swept_path_blocked, wrap_angle_rad
 from edge_explorer.world.flight_space import FLIGHT_CLEARANCE, centre_clearance_m
-from edge_explorer.world.grid import FREE, OCCUPIED, GridSpec
+from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 
 Pose = tuple[float, float, float]  # (x_m, y_m, yaw_rad) in the map frame
 _BAND_EPS_M = 1e-6  # the NON_FLIGHT band holds the cells *within* the robot radius of an obstacle
@@ -58,13 +62,16 @@ class FollowConfig:
     comfort_distance_m: float = 0.5
     escape_weight: float = 20.0  # cost per metre that a pose lies inside the caution margin: get out first
     noise_sigmas: float = 3.0  # preferred first steps keep out of the NON_FLIGHT band under this much motion noise
+    # hard: mean motions keep the centre this far from cells the sensor has not seen (0: not checked). The camera
+    # sees ±43° ahead, so a turn-and-forward can sweep the body over space it never saw, and a wall may be there.
+    unseen_clearance_m: float = FLIGHT_CLEARANCE.robot_radius_m
 
     def __post_init__(self) -> None:
         if min(self.lookahead_m, self.goal_tolerance_m, self.yaw_tolerance_rad) <= 0:
             raise ValueError("lookahead_m, goal_tolerance_m and yaw_tolerance_rad must be positive")
         weights = (self.heading_weight_m_per_rad, self.clearance_weight, self.escape_weight)
         if (
-            min(*weights, self.robot_radius_m, self.safety_margin_m, self.noise_sigmas) < 0
+            min(*weights, self.robot_radius_m, self.safety_margin_m, self.noise_sigmas, self.unseen_clearance_m) < 0
             or self.caution_margin_m < self.safety_margin_m
         ):
             raise ValueError("the weights, robot_radius_m and safety_margin_m must be ≥ 0, caution_margin_m ≥ safety")
@@ -87,26 +94,40 @@ class FreeSpace:
     grid: GridSpec
     known_free: np.ndarray  # bool: observed FREE
     clearance_m: np.ndarray  # float32: distance between cell centres to the nearest observed OCCUPIED cell
+    unseen_clearance_m: np.ndarray  # float32: the same to the nearest UNKNOWN cell
 
     @classmethod
     def from_codes(cls, codes: np.ndarray, grid: GridSpec) -> FreeSpace:
         """Distances as :func:`~edge_explorer.mapping.ego.inflate_codes` measures them (centre to centre), so
         ``clearance_m <= radius`` is exactly its NON_FLIGHT band; an all-free map has infinite clearance."""
-        return cls(grid, codes == FREE, centre_clearance_m(codes == OCCUPIED, grid.resolution_m))
+        return cls(
+            grid,
+            codes == FREE,
+            centre_clearance_m(codes == OCCUPIED, grid.resolution_m),
+            centre_clearance_m(codes == UNKNOWN, grid.resolution_m),
+        )
 
-    def clearance_at(self, x_m: float, y_m: float) -> float:
-        """Clearance of the cell holding (x_m, y_m); 0 off the grid."""
+    def _at(self, values: np.ndarray, x_m: float, y_m: float) -> float:
         row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))
         if not (0 <= row < self.grid.shape[0] and 0 <= col < self.grid.shape[1]):
             return 0.0
-        return float(self.clearance_m[row, col])
+        return float(values[row, col])
 
-    def unsafe_mask(self, x_m: float, y_m: float, safe_distance_m: float) -> np.ndarray:
+    def clearance_at(self, x_m: float, y_m: float) -> float:
+        """Clearance of the cell holding (x_m, y_m); 0 off the grid."""
+        return self._at(self.clearance_m, x_m, y_m)
+
+    def unsafe_mask(
+        self, x_m: float, y_m: float, safe_distance_m: float, unseen_distance_m: float = 0.0
+    ) -> np.ndarray:
         """Cells a motion from (x_m, y_m) may not enter: unknown or occupied, or closer to an obstacle than
-        ``safe_distance_m`` — or, if the vehicle is already that close, closer than it is now."""
+        ``safe_distance_m`` (to an unknown cell than ``unseen_distance_m``) — or, if the vehicle is already that
+        close, closer than it is now."""
         row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))
         threshold = min(safe_distance_m, self.clearance_at(x_m, y_m))
         unsafe = ~self.known_free | (self.clearance_m < threshold)
+        if unseen_distance_m > 0:
+            unsafe |= self.unseen_clearance_m < min(unseen_distance_m, self._at(self.unseen_clearance_m, x_m, y_m))
         if 0 <= row < self.grid.shape[0] and 0 <= col < self.grid.shape[1]:
             unsafe[row, col] = False  # where it is now: it must be able to leave
         return unsafe
@@ -202,7 +223,7 @@ def choose_action(
         return None
     target = _pursuit_target(path, np.array(pose[:2]), config.lookahead_m)
     target_yaw_rad = final_yaw_rad if np.array_equal(target, path[-1]) else None
-    unsafe = free.unsafe_mask(pose[0], pose[1], config.safe_distance_m)
+    unsafe = free.unsafe_mask(pose[0], pose[1], config.safe_distance_m, config.unseen_clearance_m)
     band = free.unsafe_mask(pose[0], pose[1], config.robot_radius_m + _BAND_EPS_M)  # the observed NON_FLIGHT band
 
     def safe_step(start: Pose, previous: int, action: int) -> Pose | None:

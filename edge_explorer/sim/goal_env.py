@@ -23,6 +23,7 @@ The agent's cell is flown as chosen; the deployed planner ranks the network's sc
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
@@ -39,6 +40,7 @@ from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster
 
 NUM_GOALS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
+_SHARED_STATE = frozenset({"table", "config", "predictive"})  # planner attributes a snapshot shares, never copies
 
 
 class _DecisionNeeded(Exception):  # noqa: N818 - a signal, not an error
@@ -64,8 +66,16 @@ class _AgentGoals(PredictiveFrontier):
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: nearest observed frontier, or done
-        self._goal = None  # re-entering the loop goes straight to the pending goal
         raise _DecisionNeeded(view, pose, decision)
+
+    def snapshot(self) -> dict[str, Any]:
+        """A deep copy of the loop's state (the table and configs are immutable and shared). The loop changes its
+        state on the way to the question (stall counts, dropped targets, a back-off goal); replaying the step from
+        this copy with the answer pending takes exactly the benchmark's path, where the answer comes at once."""
+        return {k: copy.deepcopy(v) for k, v in vars(self).items() if k not in _SHARED_STATE}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        vars(self).update(state)
 
     def expert_goal(self, view: View, pose: Pose) -> Goal | None:
         return super().select_goal(view, pose)
@@ -158,9 +168,11 @@ class GoalEnv(gym.Env):
                 return True, False, collisions
             if self._info["steps"] >= self.config.max_steps:
                 return False, True, collisions
+            state = self._planner.snapshot()
             try:
                 action = self._planner.act(self.sim.maps, self.sim.pose, self._previous, self.sim.thresholded_low)
             except _DecisionNeeded as decision:
+                self._planner.restore(state)  # the step is replayed with the agent's goal pending
                 self._pending = decision
                 return False, False, collisions
             if action is None:  # nothing left to explore

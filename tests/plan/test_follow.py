@@ -26,11 +26,11 @@ def table():
     return load_action_table()
 
 
-def fly(table, free, pose, path, final_yaw=None, steps=60):
+def fly(table, free, pose, path, final_yaw=None, steps=60, config=FollowConfig()):
     """Follow ``path`` with the table's mean motions; returns the poses visited and whether it arrived."""
     poses, previous = [pose], Action.HOVER
     for _ in range(steps):
-        action = choose_action(table, pose, previous, path, free, final_yaw_rad=final_yaw)
+        action = choose_action(table, pose, previous, path, free, config, final_yaw_rad=final_yaw)
         if action is None:
             return poses, True
         pose = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
@@ -103,6 +103,43 @@ def test_does_not_fly_into_unknown_space(rooms, table):
     free = FreeSpace.from_codes(codes, raster.grid)
     poses, _ = fly(table, free, (1.0, 1.5, 0.0), np.array([[3.0, 1.5]]), steps=10)
     assert max(p[0] for p in poses) < 1.5
+
+
+def test_keeps_its_centre_away_from_unseen_cells_when_asked(rooms, table):
+    """An unseen cell beside the path may be a wall: with ``unseen_clearance_m`` (the default) no chosen mean motion
+    (nor the drift braking after it) takes the centre closer than that to an unseen cell; without it some do."""
+    raster, _ = rooms
+    codes = raster.truth_codes()
+    codes[:, raster.grid.cell_of(2.4, 0.0)[1] :] = 0  # the east room beyond x = 2.4 m unseen
+    free = FreeSpace.from_codes(codes, raster.grid)
+    near_unseen = free.unseen_clearance_m < 0.25
+    careful = FollowConfig()
+    assert careful.unseen_clearance_m == 0.25  # the robot radius
+    rng = np.random.default_rng(0)
+    start = np.argwhere(free.known_free & (free.clearance_m >= careful.safe_distance_m) & ~near_unseen)
+    start = start[free.unseen_clearance_m[tuple(start.T)] < 0.4]  # where one motion can come too close
+    bold_violations = 0
+    for _ in range(200):
+        row, col = start[rng.integers(len(start))]
+        x, y = (float(v) for v in raster.grid.center_of(row, col))
+        pose, previous = (x, y, float(rng.uniform(-math.pi, math.pi))), int(rng.integers(6))
+        drift = dynamics.body_to_map(*pose, *table.mean_step(previous, Action.HOVER))
+        if dynamics.swept_path_blocked(near_unseen, raster.grid, pose[:2], drift[:2]):
+            continue  # its momentum alone carries it there: a state the careful follower never gets into
+        bearing = rng.uniform(-math.pi, math.pi)
+        target = np.array([[x + 2.0 * math.cos(bearing), y + 2.0 * math.sin(bearing)]])
+        for config in (careful, FollowConfig(unseen_clearance_m=0.0)):
+            action = choose_action(table, pose, previous, target, free, config)
+            end = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
+            brake = dynamics.body_to_map(*end, *table.mean_step(action, Action.HOVER))
+            entered = dynamics.swept_path_blocked(near_unseen, raster.grid, pose[:2], end[:2]) or (
+                dynamics.swept_path_blocked(near_unseen, raster.grid, end[:2], brake[:2])
+            )
+            if config is careful:
+                assert not entered
+            else:
+                bold_violations += entered
+    assert bold_violations > 0
 
 
 def test_arrival_needs_the_heading():
