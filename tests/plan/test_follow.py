@@ -26,11 +26,11 @@ def table():
     return load_action_table()
 
 
-def fly(table, free, pose, path, final_yaw=None, steps=60, config=FollowConfig()):
+def fly(table, free, pose, path, final_yaw=None, steps=60):
     """Follow ``path`` with the table's mean motions; returns the poses visited and whether it arrived."""
     poses, previous = [pose], Action.HOVER
     for _ in range(steps):
-        action = choose_action(table, pose, previous, path, free, config, final_yaw_rad=final_yaw)
+        action = choose_action(table, pose, previous, path, free, final_yaw_rad=final_yaw)
         if action is None:
             return poses, True
         pose = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
