@@ -137,7 +137,7 @@ def flight_ready(summary_all: dict[str, Any] | None) -> dict[str, Any]:
     return {"ready": ready, "why": why}
 
 
-def _evaluation(path: Path, weights_sha: str) -> dict[str, Any]:
+def building_evaluation(path: Path, weights_sha: str) -> dict[str, Any]:
     """The parts of a ``bench explore --json`` report the card keeps; it must have flown these weights."""
     report = json.loads(path.read_text())
     flown = (report.get("config") or {}).get("policy")
@@ -196,7 +196,7 @@ def ship_goal_policy(
         ) from None
     weights_sha = sha256_of(weights)
     stages = [stage_record(d) for d in stage_dirs]
-    buildings = _evaluation(evaluation, weights_sha) if evaluation is not None else None
+    buildings = building_evaluation(evaluation, weights_sha) if evaluation is not None else None
     env = EnvConfig()
     card = {
         "format": CARD_FORMAT,
