@@ -62,9 +62,7 @@ def main(out: Path, hardware: str, stretches: list[str]) -> None:
         ax.set_ylabel("val F1 (observed + thresholded prediction)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.suptitle(
-        f"Map predictor on the {hardware}: val F1 per true-coverage bin (512 val samples, default thresholds)"
-    )
+    fig.suptitle(f"Map predictor on the {hardware}: val F1 per true-coverage bin (512 val samples, default thresholds)")
     fig.text(0.01, 0.01, "stretches: " + "; ".join(captions), fontsize=8, wrap=True)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(out, dpi=120)

@@ -56,6 +56,16 @@ def _explore(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from edge_explorer.bench import explore as bench
+    from edge_explorer.bench.summary import (
+        failures,
+        figure_panels,
+        markdown_failures,
+        markdown_paired,
+        markdown_table,
+        paired_differences,
+        plot_curves,
+        summarize,
+    )
     from edge_explorer.cli import write_json
     from edge_explorer.world.catalog import load_buildings
 
@@ -73,22 +83,22 @@ def _explore(args: argparse.Namespace) -> int:
         return tqdm(iterable, total=total, desc="bench explore", unit="run", mininterval=1.0)
 
     records = bench.run_benchmark(rasters, specs, workers, args.out_dir, progress, args.ray)
-    summary = bench.summarize(records, methods)
-    paired = bench.paired_differences(records, methods)
-    table = bench.markdown_table(summary, methods, per_plan=len(rasters) <= 20)
-    table += "\n" + bench.markdown_paired(paired) if len(methods) > 1 else ""
+    summary = summarize(records, methods)
+    paired = paired_differences(records, methods)
+    table = markdown_table(summary, methods, per_plan=len(rasters) <= 20)
+    table += "\n" + markdown_paired(paired) if len(methods) > 1 else ""
     command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
-    failed = bench.failures(records)
-    table += bench.markdown_failures(failed)
+    failed = failures(records)
+    table += markdown_failures(failed)
     print(table, end="")
     print(f"{len(records)} runs, {len(failed)} without 95 % coverage or with a collision")
     if args.markdown is not None:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
         args.markdown.write_text(table)
-    panels = bench.figure_panels(records, methods)
+    panels = figure_panels(records, methods)
     if args.plot is not None:
         title = f"coverage vs path length — {args.plans}, {args.runs} run(s) per building, seed {args.seed}"
-        bench.plot_curves(panels, args.plot, config.coverage_goal, title)
+        plot_curves(panels, args.plot, config.coverage_goal, title)
     write_json(
         args.json,
         {

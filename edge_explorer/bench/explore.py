@@ -1,4 +1,4 @@
-"""The exploration benchmark: the paper's Table I and its coverage-vs-path-length figure (Fig. 5).
+"""The exploration benchmark behind the paper's Table I and its coverage-vs-path-length figure (Fig. 5): the runs.
 
 Methods are planner names (:data:`~edge_explorer.plan.baselines.PLANNERS`: ``frontier``, ``fuel``), optionally
 with ``+pred``: the paper's "+ Predictor" variants, where the planner still decides on the *observed* map but every
@@ -11,19 +11,16 @@ sampler with a seed derived from the benchmark seed and the building's name (:fu
 A run ends when coverage and correct coverage both reach the goal (95 %), when the planner has nothing left to
 explore, or at the step cap. Every step's coverage, correct coverage and path length are recorded.
 
-Per building and method (:func:`summarize`): the path length when coverage first reaches 95 % (min / max / avg /
-std over the runs that reach it: Table I), the same for correct coverage, how many runs reach each, the success
-rate (95 % coverage without a collision), steps and collisions; between methods, the paired per-building difference
-of that path length (:func:`paired_differences`). Runs go to worker processes; with an output folder
-each finished run is written there as a small JSON record and a rerun skips the runs already recorded with the same
-settings (:func:`run_benchmark`).
+Runs go to worker processes; with an output folder each finished run is written there as a small JSON record and a
+rerun skips the runs already recorded with the same settings (:func:`run_benchmark`). The records are summed up —
+Table I, the paired differences between methods, the failures, the coverage figure — by
+:mod:`edge_explorer.bench.summary`.
 """
 
 from __future__ import annotations
 
 import importlib
 import json
-import math
 import os
 import time
 import zlib
@@ -46,7 +43,6 @@ from edge_explorer.world.raster import PlanRaster, clearance_m
 PRED_SUFFIX = "+pred"
 DRL = "drl"  # the learned goal policy (DESIGN.md §6), flown through the goal-planner loop
 RECORD_FORMAT = "edge-explorer/explore-run"
-CURVE_STEP_M = 0.5  # path-length spacing of the mean curves
 START_CLEARANCE_M = 0.5  # from the start pose to the nearest wall
 _START_ATTEMPTS = 100
 
@@ -418,224 +414,3 @@ def run_benchmark(
 
 def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
-
-
-# ---- statistics -------------------------------------------------------------------------------------------------
-def _stats(values: Sequence[float]) -> dict[str, float | None]:
-    if len(values) == 0:
-        return {"min": None, "max": None, "avg": None, "std": None}
-    a = np.asarray(values, dtype=np.float64)
-    return {"min": float(a.min()), "max": float(a.max()), "avg": float(a.mean()), "std": float(a.std())}
-
-
-def _group_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    at_coverage = [r["path_at_coverage_m"] for r in records if r["path_at_coverage_m"] is not None]
-    at_correct = [r["path_at_correct_coverage_m"] for r in records if r["path_at_correct_coverage_m"] is not None]
-    success = [r for r in records if r["path_at_coverage_m"] is not None and r["collisions"] == 0]
-    return {
-        "runs": len(records),
-        "path_at_coverage_m": _stats(at_coverage),
-        "reached_coverage": len(at_coverage),
-        "path_at_correct_coverage_m": _stats(at_correct),
-        "reached_correct_coverage": len(at_correct),
-        "success_rate": len(success) / len(records),
-        "collisions": int(sum(r["collisions"] for r in records)),
-        "runs_with_collision": sum(1 for r in records if r["collisions"] > 0),
-        "steps": _stats([r["steps"] for r in records]),
-        "final_coverage": _stats([r["final_coverage"] for r in records]),
-        "final_correct_coverage": _stats([r["final_correct_coverage"] for r in records]),
-        "endings": {e: sum(1 for r in records if r["ending"] == e) for e in ("goal", "explored", "step_cap")},
-        "planner_ms_per_step": 1e3 * sum(r["planner_s"] for r in records) / max(sum(r["steps"] for r in records), 1),
-    }
-
-
-def summarize(records: Sequence[dict[str, Any]], methods: Sequence[str]) -> dict[str, Any]:
-    """``{"plans": {plan: {method: summary}}, "all": {method: summary over every run}}``."""
-    plans: dict[str, dict[str, Any]] = {}
-    for plan in dict.fromkeys(r["spec"]["plan"] for r in records):
-        plans[plan] = {
-            m: _group_summary([r for r in records if r["spec"]["plan"] == plan and r["spec"]["method"] == m])
-            for m in methods
-        }
-    overall = {m: _group_summary([r for r in records if r["spec"]["method"] == m]) for m in methods}
-    return {"plans": plans, "all": overall}
-
-
-def paired_differences(records: Sequence[dict[str, Any]], methods: Sequence[str]) -> list[dict[str, Any]]:
-    """For every pair of methods (a listed before b): b − a of the per-building average path at 95 % coverage,
-    over the buildings where both reached it — paired mean, its standard error, median, and on how many buildings
-    b was shorter. Pairing by building removes most of the spread between buildings, which dwarfs the difference
-    between methods (on the test split the path to 95 % ranges from about 15 to 130 m)."""
-    average: dict[str, dict[str, float]] = {m: {} for m in methods}
-    for m in methods:
-        paths: dict[str, list[float]] = {}
-        for r in records:
-            if r["spec"]["method"] == m and r["path_at_coverage_m"] is not None:
-                paths.setdefault(r["spec"]["plan"], []).append(r["path_at_coverage_m"])
-        average[m] = {plan: float(np.mean(v)) for plan, v in paths.items()}
-    out = []
-    for i, a in enumerate(methods):
-        for b in methods[i + 1 :]:
-            d = np.array([average[b][plan] - average[a][plan] for plan in average[a] if plan in average[b]])
-            n = len(d)
-            out.append(
-                {
-                    "a": a,
-                    "b": b,
-                    "buildings": n,
-                    "mean_m": float(d.mean()) if n else None,
-                    "stderr_m": float(d.std(ddof=1) / math.sqrt(n)) if n > 1 else None,
-                    "median_m": float(np.median(d)) if n else None,
-                    "b_shorter": int((d < 0).sum()),
-                }
-            )
-    return out
-
-
-def markdown_paired(paired: Sequence[dict[str, Any]]) -> str:
-    """The paired differences as a Markdown table (empty when there is nothing to compare)."""
-    rows = [p for p in paired if p["buildings"] > 0]
-    if not rows:
-        return ""
-    lines = [
-        "| paired difference, path at 95 % coverage | mean ± s.e. (m) | median (m) | buildings | b shorter on |",
-        "| --- | --- | --- | --- | --- |",
-    ]
-    for p in rows:
-        stderr = "–" if p["stderr_m"] is None else f"{p['stderr_m']:.1f}"
-        lines.append(
-            f"| {p['b']} − {p['a']} | {p['mean_m']:+.1f} ± {stderr} | {p['median_m']:+.1f} | {p['buildings']} | "
-            f"{p['b_shorter']} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def failures(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Runs that did not reach the coverage goal or collided, with how they ended."""
-    return [
-        {
-            "method": r["spec"]["method"],
-            "plan": r["spec"]["plan"],
-            "run": r["spec"]["run"],
-            "ending": r["ending"],
-            "why": r.get("why", {}).get("text"),
-            "final_coverage": r["final_coverage"],
-            "collisions": r["collisions"],
-            "steps": r["steps"],
-        }
-        for r in records
-        if r["path_at_coverage_m"] is None or r["collisions"] > 0
-    ]
-
-
-def markdown_failures(failed: Sequence[dict[str, Any]], limit: int = 30) -> str:
-    """The runs that missed the goal or collided, each with why it ended (the first ``limit``)."""
-    if not failed:
-        return ""
-    lines = ["", f"Runs without 95 % coverage or with a collision ({len(failed)}):", ""]
-    for f in failed[:limit]:
-        crash = f", {f['collisions']} collision(s)" if f["collisions"] else ""
-        lines.append(f"- {f['method']} on {f['plan']} run {f['run']}: {f['why'] or f['ending']}{crash}")
-    if len(failed) > limit:
-        lines.append(f"- … and {len(failed) - limit} more (see the JSON)")
-    return "\n".join(lines) + "\n"
-
-
-def _fmt_stats(s: dict[str, float | None]) -> str:
-    if s["avg"] is None:
-        return "–"
-    return f"{s['min']:.1f} / {s['max']:.1f} / {s['avg']:.1f} / {s['std']:.1f}"
-
-
-def markdown_table(summary: dict[str, Any], methods: Sequence[str], per_plan: bool = True) -> str:
-    """Table I: per building (and over all runs) and method, path length at 95 % coverage and correct coverage."""
-    lines = [
-        "| building | method | path at 95 % coverage (m) min / max / avg / std | reached | "
-        "path at 95 % correct coverage (m) min / max / avg / std | reached | success | collisions | steps avg |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    groups = [*summary["plans"].items()] if per_plan else []
-    if len(summary["plans"]) > 1 or not per_plan:
-        groups.append((f"all ({len(summary['plans'])} plans)", summary["all"]))
-    for plan, by_method in groups:
-        for m in methods:
-            s = by_method[m]
-            lines.append(
-                f"| {plan} | {m} | {_fmt_stats(s['path_at_coverage_m'])} | {s['reached_coverage']}/{s['runs']} | "
-                f"{_fmt_stats(s['path_at_correct_coverage_m'])} | {s['reached_correct_coverage']}/{s['runs']} | "
-                f"{100 * s['success_rate']:.0f} % | {s['collisions']} | {s['steps']['avg']:.0f} |"
-            )
-    return "\n".join(lines) + "\n"
-
-
-# ---- curves and the figure ---------------------------------------------------------------------------------------
-def mean_curves(records: Sequence[dict[str, Any]], step_m: float = CURVE_STEP_M) -> dict[str, Any]:
-    """Coverage and correct coverage against path length, as mean and std over ``records``.
-
-    Each run's curve is sampled every ``step_m`` metres of path (the value after the last step within that path
-    length) and held at its final value after the run ended, so runs of different lengths average fairly.
-    """
-    longest = max(r["curves"]["path_length_m"][-1] for r in records)
-    grid = np.arange(0.0, longest + step_m, step_m)
-    out: dict[str, Any] = {"path_m": np.round(grid, 3).tolist()}
-    for key in ("coverage", "correct_coverage"):
-        sampled = []
-        for r in records:
-            path = np.asarray(r["curves"]["path_length_m"])
-            values = np.asarray(r["curves"][key])
-            sampled.append(values[np.searchsorted(path, grid, side="right") - 1])
-        a = np.asarray(sampled)
-        out[key] = {"mean": np.round(a.mean(axis=0), 5).tolist(), "std": np.round(a.std(axis=0), 5).tolist()}
-    return out
-
-
-def figure_panels(records: Sequence[dict[str, Any]], methods: Sequence[str], max_panels: int = 6) -> dict[str, Any]:
-    """Mean curves per panel and method: one panel per building, or one for all of them if there are more than
-    ``max_panels`` buildings (the test split)."""
-    plans = list(dict.fromkeys(r["spec"]["plan"] for r in records))
-    if len(plans) <= max_panels:
-        panels = {p: [r for r in records if r["spec"]["plan"] == p] for p in plans}
-    else:
-        panels = {f"all {len(plans)} plans": list(records)}
-    return {
-        title: {m: mean_curves([r for r in group if r["spec"]["method"] == m]) for m in methods}
-        for title, group in panels.items()
-    }
-
-
-def plot_curves(panels: dict[str, Any], path: Path, goal: float, title: str) -> None:
-    """Fig. 5: mean coverage (solid) and correct coverage (dashed) against path length with ±1 std bands."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = len(panels)
-    cols = min(n, 2)
-    rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(6.4 * cols, 4.2 * rows), squeeze=False)
-    for ax, (panel, by_method) in zip(axes.ravel(), panels.items(), strict=False):
-        for k, (method, curves) in enumerate(by_method.items()):
-            color = f"C{k}"
-            x = np.asarray(curves["path_m"])
-            for key, style in (("coverage", "-"), ("correct_coverage", "--")):
-                mean = np.asarray(curves[key]["mean"])
-                std = np.asarray(curves[key]["std"])
-                label = method if key == "coverage" else f"{method} (correct)"
-                ax.plot(x, mean, style, color=color, lw=1.6 if key == "coverage" else 1.0, label=label)
-                if key == "coverage":
-                    ax.fill_between(x, np.clip(mean - std, 0, 1), np.clip(mean + std, 0, 1), color=color, alpha=0.2)
-        ax.axhline(goal, color="0.4", lw=0.8, ls=":")
-        ax.set_title(panel)
-        ax.set_xlabel("path length [m]")
-        ax.set_ylabel("coverage")
-        ax.set_ylim(0, 1.01)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right")
-    for ax in axes.ravel()[n:]:
-        ax.set_visible(False)
-    fig.suptitle(title)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -4,7 +4,7 @@ The val split is regenerated deterministically (:func:`edge_explorer.world.datas
 observations are the same on every machine. Its first ``plans`` plans calibrate the quantizers; the next
 ``held_back_plans`` plans, never calibrated on, feed the accuracy gates.
 
-* **Predictor**: each plan is explored by a fixed-seed explorer of :mod:`edge_explorer.learn.predictor_data` (the
+* **Predictor**: each plan is explored by a fixed-seed explorer of :mod:`edge_explorer.learn.predictor_flights` (the
   data generator's :func:`~edge_explorer.learn.predictor_data.collect_plan_samples`: partial maps at coverage levels
   drawn uniformly), and each recorded map becomes the network's input exactly as in flight: the north-up ego window
   (:func:`~edge_explorer.mapping.ego.pad_shift`) encoded by :func:`~edge_explorer.predict.encoding.encode_windows`.
@@ -81,7 +81,8 @@ def _require(feeds: list, what: str, config: CalibrationConfig) -> None:
 def predictor_observations(config: CalibrationConfig, input_name: str) -> Observations:
     """Explore the val plans and record encoded ego windows (see the module docstring)."""
     from edge_explorer.learn.eval_predictor import make_explorer
-    from edge_explorer.learn.predictor_data import SampleConfig, Scene, collect_plan_samples
+    from edge_explorer.learn.predictor_data import SampleConfig, collect_plan_samples
+    from edge_explorer.learn.predictor_flights import Scene
 
     calibration_rasters, held_back_rasters = val_rasters(config)
     explorer = make_explorer(config.explorer)

@@ -30,7 +30,7 @@ import numpy as np
 from edge_explorer.backends.card import CARD_FILE, CardError, load_card, verify_sha256
 from edge_explorer.backends.chain import load_model
 from edge_explorer.learn.eval_predictor import DEFAULT_THRESHOLDS, make_explorer, predictions_in_flight
-from edge_explorer.learn.predictor_data import DEFAULT_SENSOR, Explorer, Scene
+from edge_explorer.learn.predictor_flights import DEFAULT_SENSOR, Explorer, Scene
 from edge_explorer.predict.calibration import DEFAULT_LEVELS, Calibration, CalibrationSample, calibrate
 from edge_explorer.predict.predictor import THRESHOLDS_KEY, PredictorRuntime, card_thresholds
 from edge_explorer.sim.env import Predictor

@@ -1,6 +1,6 @@
 """Evaluating the map predictor the paper's way: map quality with the prediction against the true coverage.
 
-Each plan is explored once by a fixed-seed explorer of :mod:`edge_explorer.learn.predictor_data` (the prediction
+Each plan is explored once by a fixed-seed explorer of :mod:`edge_explorer.learn.predictor_flights` (the prediction
 does not steer the flight). At every scan that enters a new 0.5 % bin of true coverage (observed cells only), the
 predictor reads the north-up ego window, the probabilities go back onto the map (:func:`~edge_explorer.mapping.ego.
 unshift`), dynamic thresholding (DESIGN.md §5) fills the unobserved cells, and the map is scored (§7): F1, coverage
@@ -35,7 +35,7 @@ import numpy as np
 from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.learn.predictor_data import (
+from edge_explorer.learn.predictor_flights import (
     DEFAULT_SENSOR,
     Explorer,
     FlightLimits,

@@ -55,7 +55,8 @@ from edge_explorer.learn import ddp, toml_config
 from edge_explorer.learn.csv_log import append_csv_row, drop_rows_after
 from edge_explorer.learn.fake_quant import attach_fake_quant
 from edge_explorer.learn.hardware import hardware_description
-from edge_explorer.learn.predictor_data import LossWeighting, PredictorDataset, load_shards, shard_paths
+from edge_explorer.learn.predictor_dataset import LossWeighting, PredictorDataset
+from edge_explorer.learn.predictor_shards import load_shards, shard_paths
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
 from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map

@@ -2,11 +2,12 @@
 
 Runs the daemon's real loop against the simulated vehicle (:mod:`edge_explorer.profiling.loop`), then every
 shipped model on every backend available here (:mod:`edge_explorer.profiling.models`), and writes
-``report.json`` + ``report.html`` to ``--out`` with a section per ``--profile`` (:mod:`edge_explorer.profiling.report`);
-a Markdown summary goes to the terminal. The ``host`` profile describes the machine the measurements come from and
-is the reference every estimate is scaled from. Each model runs in the loop on the first backend of the host
-profile's order for it (``[backends]``). ``--record DIR`` keeps the flight's frames, poses and per-call timings for
-``docs/profiling/independent_check.py``; ``--replay DIR`` flies with those frames instead of rendering them.
+``report.json`` (:mod:`edge_explorer.profiling.report`) + ``report.html`` (:mod:`edge_explorer.profiling.html_report`)
+to ``--out`` with a section per ``--profile``; a Markdown summary goes to the terminal. The ``host`` profile
+describes the machine the measurements come from and is the reference every estimate is scaled from. Each model runs
+in the loop on the first backend of the host profile's order for it (``[backends]``). ``--record DIR`` keeps the
+flight's frames, poses and per-call timings for ``docs/profiling/independent_check.py``; ``--replay DIR`` flies with
+those frames instead of rendering them.
 Exit code 0 whatever the verdicts (they are the report's content).
 """
 
@@ -86,9 +87,10 @@ def _profile(args: argparse.Namespace) -> int:
     from edge_explorer.cli import write_json
     from edge_explorer.errors import EdgeExplorerError
     from edge_explorer.profiling.device_profile import load_profile
+    from edge_explorer.profiling.html_report import write_html
     from edge_explorer.profiling.loop import RECORDED_TIMINGS, LoopOptions, measure_loop
     from edge_explorer.profiling.models import bench_models
-    from edge_explorer.profiling.report import build_report, markdown_summary, write_html
+    from edge_explorer.profiling.report import build_report, markdown_summary
 
     if args.warmup < 0:
         raise EdgeExplorerError(f"--warmup must be ≥ 0, got {args.warmup}")

@@ -3,14 +3,9 @@
 import numpy as np
 import pytest
 
-from edge_explorer.learn.predictor_data import (
-    FlightLimits,
-    RandomGoalWalk,
-    SampleConfig,
-    Scene,
-    collect_plan_samples,
-    write_shard,
-)
+from edge_explorer.learn.predictor_data import SampleConfig, collect_plan_samples
+from edge_explorer.learn.predictor_flights import FlightLimits, RandomGoalWalk, Scene
+from edge_explorer.learn.predictor_shards import write_shard
 from edge_explorer.world.catalog import plan_to_raster
 from tests.conftest import two_room_plan
 

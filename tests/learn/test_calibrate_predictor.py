@@ -7,7 +7,7 @@ import numpy as np
 from edge_explorer.backends.card import load_card, verify_sha256
 from edge_explorer.cli import main
 from edge_explorer.learn.calibrate_predictor import plan_samples
-from edge_explorer.learn.predictor_data import RandomGoalWalk
+from edge_explorer.learn.predictor_flights import RandomGoalWalk
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
 from edge_explorer.predict.predictor import card_thresholds
 from edge_explorer.predict.thresholding import ThresholdConfig

@@ -7,7 +7,7 @@ import pytest
 
 from edge_explorer.cli import main
 from edge_explorer.learn.eval_predictor import REPORT_LEVELS, evaluate_plan, summarize
-from edge_explorer.learn.predictor_data import FlightLimits, RandomGoalWalk
+from edge_explorer.learn.predictor_flights import FlightLimits, RandomGoalWalk
 from edge_explorer.learn.unet import UNet, UNetConfig, save_unet
 from edge_explorer.mapping.ego import pad_shift
 from edge_explorer.world.grid import FREE

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from edge_explorer.bench import explore as bench
+from edge_explorer.bench.summary import summarize
 from edge_explorer.export import calibration, pipeline
 from edge_explorer.export.recipe import load_recipe
 from edge_explorer.learn.goal_card import ship_goal_policy
@@ -119,7 +120,7 @@ def test_train_ship_export_and_fly_the_exported_policy_on_the_two_rooms(demo_dir
     assert record["path_at_coverage_m"] is not None
 
     evaluation = tmp_path / "bench.json"
-    summary = bench.summarize([record], ["drl"])
+    summary = summarize([record], ["drl"])
     evaluation.write_text(json.dumps({"command": "test", "plans": rooms.name, "methods": ["drl"], "runs_per_plan": 1,
                                       "seed": 0, "paired": [], "config": {"policy": str(weights)},
                                       "summary": summary}))  # fmt: skip

@@ -25,7 +25,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink, Pose
-from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, VehicleLimits
+from edge_explorer.sim.quadrotor import VehicleLimits
+from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig
 
 pytestmark = pytest.mark.slow
 

@@ -30,7 +30,7 @@ LEVELS = (0.8, 0.95, 0.98)
 def collect(split: str, plans: int, noise: float, model: Path, levels: tuple[float, ...] = LEVELS) -> dict:
     from edge_explorer.bench.explore import load_predictor
     from edge_explorer.learn.calibrate_predictor import collect_samples
-    from edge_explorer.learn.predictor_data import DEFAULT_SENSOR
+    from edge_explorer.learn.predictor_flights import DEFAULT_SENSOR
     from edge_explorer.mapping.metrics import map_metrics
     from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 

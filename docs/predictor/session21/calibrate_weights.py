@@ -20,7 +20,7 @@ from pathlib import Path
 def main() -> None:
     from edge_explorer.bench.explore import load_predictor
     from edge_explorer.learn.calibrate_predictor import collect_samples
-    from edge_explorer.learn.predictor_data import DEFAULT_SENSOR
+    from edge_explorer.learn.predictor_flights import DEFAULT_SENSOR
     from edge_explorer.predict.calibration import calibrate
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -3,7 +3,7 @@
 The shipped encoding (:mod:`edge_explorer.predict.encoding`) feeds the U-Net two binary channels, observed FREE and
 observed OCCUPIED, with UNKNOWN as (0, 0). This script trains and scores the same U-Net under an alternative
 encoding without touching the product: it swaps the encoder that training, validation and the torch predictor call
-(``learn.predictor_data``, ``learn.unet``) and the network's input width, then runs the project's own commands.
+(``learn.predictor_dataset``, ``learn.unet``) and the network's input width, then runs the project's own commands.
 
 * ``onehot3``: three binary channels, FREE / OCCUPIED / UNKNOWN. Unknown becomes an explicit signal, so the
   convolutions' zero padding at the window's edge no longer reads as "unknown" (``pad_shift`` fills beyond the map
@@ -61,10 +61,10 @@ ENCODINGS = {"onehot3": (encode_onehot3, 3), "trinary": (encode_trinary, 1)}
 
 def install(name: str) -> None:
     """Route the trainer's, the validator's and the torch predictor's encoder to ``name``, and widen the U-Net."""
-    from edge_explorer.learn import predictor_data, train_predictor, unet
+    from edge_explorer.learn import predictor_dataset, train_predictor, unet
 
     encoder, channels = ENCODINGS[name]
-    predictor_data.encode_windows = encoder
+    predictor_dataset.encode_windows = encoder
     unet.encode_windows = encoder
 
     def unet_config(self: train_predictor.PredictorTrainConfig) -> unet.UNetConfig:
