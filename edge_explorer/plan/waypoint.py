@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose
-from edge_explorer.plan.frontier import GraphConfig, PlanningGraph
+from edge_explorer.plan.graph import GraphConfig, PlanningGraph
 from edge_explorer.sim.dynamics import Action, ActionTable, body_to_map, swept_path_blocked
 
 HOLD = "hold"  # the source of a waypoint that keeps the vehicle where it is

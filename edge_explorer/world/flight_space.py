@@ -3,7 +3,7 @@
 Every stage that asks "can the vehicle be here?" answers with this module (issue #18): the plan loaders and N_M
 (:func:`restrict_to_flight_space`), the simulator's start sampler (:func:`reachable_cells`), the planners'
 planning grid and the daemon's safety check (:func:`centre_clearance_m`, :func:`planning_cells` through
-:class:`~edge_explorer.plan.follow.FreeSpace` and :class:`~edge_explorer.plan.frontier.Traversable`).
+:class:`~edge_explorer.plan.follow.FreeSpace` and :class:`~edge_explorer.plan.graph.Traversable`).
 
 Definitions
 -----------

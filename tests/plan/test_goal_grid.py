@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 
 from edge_explorer.mapping.ego import OBSERVATION_WINDOW_CELLS, rotate_crop
 from edge_explorer.plan.follow import FreeSpace
-from edge_explorer.plan.frontier import GraphConfig, PlanningGraph
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GOAL_POOL, ego_goal_cells, goal_options
+from edge_explorer.plan.graph import GraphConfig, PlanningGraph
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 
 

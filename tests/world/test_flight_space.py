@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from edge_explorer.plan.follow import FreeSpace
-from edge_explorer.plan.frontier import PlanningGraph
+from edge_explorer.plan.graph import PlanningGraph
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.flight_space import FLIGHT_CLEARANCE, observable_cells, reachable_cells
 from edge_explorer.world.grid import LOW_RES_M
@@ -55,7 +55,7 @@ def _planner_connects(raster, a_xy, b_xy) -> bool:
 
 
 def _graph_config():
-    from edge_explorer.plan.frontier import GraphConfig
+    from edge_explorer.plan.graph import GraphConfig
 
     return GraphConfig()
 
