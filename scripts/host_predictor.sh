@@ -6,6 +6,13 @@
 # or resumed for MINUTES of wall time with bfloat16 autocast (a CPU with AVX512-BF16/AMX; PRECISION=fp32 elsewhere).
 # Run it niced in the background at the start of a session:
 #   nohup nice -n 5 bash scripts/host_predictor.sh > runs/host_predictor.log 2>&1 &
+# On a lent GPU the same run can go on (same config, batches and schedule; `--resume` loads the checkpoint onto
+# --device; not yet tried on a GPU): carry
+# data/p3host (21 MB), data/predictor3/val and the run folder (26 MB: weights + optimizer), with docs/ and models/
+# left out of the index for that call as scripts/gpu_predictor.sh's header shows, then
+#   python3 -m edge_explorer.cli train predictor --config edge_explorer/learn/configs/predictor_host_wide.toml \
+#       --out runs/predictor_host_wide --resume --device cuda --loader-workers 12 --max-minutes 8 && cp -r runs/predictor_host_wide $OUT/
+# and copy the folder back over runs/predictor_host_wide here; the next host call resumes from it.
 set -euo pipefail
 SHARDS=${SHARDS:-250}
 MINUTES=${MINUTES:-150}
