@@ -52,6 +52,7 @@ def run_summary(
         "why": explain_ending(report, daemon),
         "coverage": report.coverage,
         "correct_coverage": report.correct_coverage,
+        "observed_coverage": report.observed_coverage,
         "f1": report.f1,
         "path_length_m": report.path_length_m,
         "path_at_goal_m": report.path_at_goal_m,
@@ -153,7 +154,8 @@ def print_summary(s: dict[str, Any]) -> None:
     print(
         f"run: {s['plan'] or 'no plan'}, {s['planner']} planner, ended by {s['ending']}{_why(s)}; "
         f"coverage {pct(s['coverage'])} "
-        f"(correct {pct(s['correct_coverage'])}), path {s['path_length_m']:.1f} m "
+        f"(correct {pct(s['correct_coverage'])}, observed {pct(s.get('observed_coverage'))}), "
+        f"path {s['path_length_m']:.1f} m "
         f"(at {pct(s['coverage_goal'])}: {at_goal}), "
         f"collisions {s['collisions']}, decisions {s['decisions']}, decision latency p50 {latency['p50']:.1f} ms "
         f"p95 {latency['p95']:.1f} ms, CPU {s['cpu']['daemon_percent_of_one_core']:.1f} % of one core "

@@ -285,6 +285,7 @@ def test_explores_reaches_the_coverage_goal_and_flies_home(raster, camera, tmp_p
     report = flight.report
     assert report.ending == "coverage goal"
     assert report.coverage >= 0.7 and report.path_at_goal_m is not None
+    assert report.observed_coverage == report.coverage  # no predictor: everything counted was observed
     assert report.returned_home and flight.daemon.phase == "done"
     assert flight.vehicle.collisions == 0
     # Nothing went wrong but what a starved host causes (the daemon's process got no CPU time for a while).
@@ -313,6 +314,9 @@ def test_the_frontier_planner_with_a_predictor_counts_predicted_coverage(raster,
     assert report.planner == "frontier" and report.predictor
     assert report.ending == "coverage goal" and report.coverage >= 0.7
     assert report.stages["predictor"].count == report.stages["thresholding"].count == report.decisions
+    # the observed map alone is measured beside it at every decision: the prediction only ever adds
+    assert report.observed_coverage is not None and report.observed_coverage <= report.coverage
+    assert all(observed <= coverage for _, coverage, _, _, observed in report.timeline if coverage is not None)
     assert flight.daemon.view is not None and flight.daemon.view.thresholded is not None
     assert flight.vehicle.collisions == 0
 

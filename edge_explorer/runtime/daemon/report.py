@@ -109,6 +109,7 @@ class RunReport:
     predictor: bool
     coverage: float | None  # None without a plan to measure against
     correct_coverage: float | None
+    observed_coverage: float | None  # the observed map alone: what the prediction added is coverage minus this
     f1: float | None
     path_length_m: float  # odometry positions at the decisions, like the simulator's per-step path
     path_at_goal_m: float | None  # path length when coverage first reached the goal
@@ -123,7 +124,8 @@ class RunReport:
     process_cpu_s: float
     source_cpu_s: float  # CPU time spent producing frames inside the loop (the camera renderer in simulation)
     stages: dict[str, StageStats]
-    timeline: list[tuple[float, float | None, float | None, float]]  # (t_s, coverage, correct, path_m)
+    timeline: list[tuple[float, float | None, float | None, float, float | None]]  # (t_s, coverage, correct,
+    # path_m, observed coverage)
     path_xy_m: list[tuple[float, float]]
 
     def to_json(self) -> dict[str, Any]:
@@ -181,14 +183,16 @@ class RunRecord:
         self._path: list[tuple[float, float]] = []
         self._path_length_m = 0.0
         self._path_at_goal_m: float | None = None
-        self._timeline: list[tuple[float, float | None, float | None, float]] = []
+        self._observed_coverage: float | None = None
+        self._timeline: list[tuple[float, float | None, float | None, float, float | None]] = []
         self._source_cpu_s = 0.0
         self.view: DecisionView | None = None
 
     def _record_progress(
         self, now: float, odometry: Odometry, maps: ObservedMaps, thresholded: np.ndarray | None
     ) -> None:
-        """Coverage against the plan (if known) and the path, once per decision."""
+        """Coverage against the plan (if known) and the path, once per decision. Coverage is also measured on the
+        observed map alone, so a flight shows how much of its coverage the prediction added (issue #17)."""
         xy = (odometry.x_m, odometry.y_m)
         if self._path and self._phase in ("exploring", "returning"):
             self._path_length_m += math.dist(self._path[-1], xy)
@@ -197,10 +201,12 @@ class RunRecord:
         if self.truth is not None:
             with self.timings.timed("coverage"):
                 self._metrics = self.truth.metrics(maps.low, maps.low_grid, thresholded)
+                observed = self._metrics if thresholded is None else self.truth.metrics(maps.low, maps.low_grid, None)
             coverage, correct = self._metrics.coverage, self._metrics.correct_coverage
+            self._observed_coverage = observed.coverage
             if self._path_at_goal_m is None and coverage >= self.config.coverage_goal:
                 self._path_at_goal_m = self._path_length_m
-        self._timeline.append((now - self._t0_s, coverage, correct, self._path_length_m))
+        self._timeline.append((now - self._t0_s, coverage, correct, self._path_length_m, self._observed_coverage))
 
     def _progress(self, now: float) -> Progress:
         decision = self.timings.stats().get("decision")
@@ -227,6 +233,7 @@ class RunRecord:
             predictor=self.predictor is not None,
             coverage=None if m is None else m.coverage,
             correct_coverage=None if m is None else m.correct_coverage,
+            observed_coverage=self._observed_coverage,
             f1=None if m is None else m.f1,
             path_length_m=self._path_length_m,
             path_at_goal_m=self._path_at_goal_m,
