@@ -6,7 +6,7 @@
 * ``policy``: :func:`edge_explorer.learn.goal_net.load_goal_net` wrapped in :class:`GoalLogits` — inputs
   ``high``, ``thres`` [1, 237, 237] (cell codes as float32) and ``last_action`` [1, 6] (one-hot), output ``logits``
   [1, 59, 59], the spatial action map of :mod:`edge_explorer.plan.goal_grid`; the chosen goal is the argmax over
-  the valid cells (:func:`~edge_explorer.plan.goal_policy.choose_cell`). The value head is PPO's critic only and
+  the valid cells (:func:`~edge_explorer.plan.goal_policy.weighted_scores`). The value head is PPO's critic only and
   is left out of the graph. Every format, ONNX and TFLite, takes the float codes and encodes them with the net's
   own ReLUs (:func:`~edge_explorer.learn.goal_net.encode_codes`), which map onto the Edge TPU (it has no EQUAL,
   SELECT or CAST).
@@ -52,7 +52,7 @@ GOAL_GRID_CONTRACT = json.dumps(
         "layout": "heading-up ego goal cell (i, j) covers observation rows [pool*i, pool*i + pool) and columns "
         "[pool*j, pool*j + pool) (edge_explorer.plan.goal_grid)",
         "choice": "goal = argmax of the logits over the valid goal cells only (masked argmax, "
-        "edge_explorer.plan.goal_policy.choose_cell)",
+        "edge_explorer.plan.goal_policy.weighted_scores; the planner keeps to goals worth a look)",
     }
 )
 ENCODINGS = {"predictor": PREDICTOR_ENCODING, "policy": GOAL_POLICY_ENCODING}

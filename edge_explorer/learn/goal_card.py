@@ -220,7 +220,7 @@ def ship_goal_policy(
             "shape": [1, GOAL_GRID_CELLS, GOAL_GRID_CELLS],
             "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the valid "
             "cell of the highest logit − decision.policy_cost_weight_per_m × path cost in m "
-            "(plan.goal_policy.choose_cell), "
+            "among the goals worth a look (plan.goal_policy.best_cell_worth_a_look), "
             "flown along observed free space",
         },
         "decision": {"policy_cost_weight_per_m": PredictiveConfig().policy_cost_weight_per_m},

@@ -29,7 +29,14 @@ from edge_explorer.mapping.ego import OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import GoalPolicy, choose_cell, expert_label, goal_at_cell, goal_decision
+from edge_explorer.plan.goal_policy import (
+    GoalPolicy,
+    best_cell_worth_a_look,
+    expert_label,
+    goal_at_cell,
+    goal_decision,
+    weighted_scores,
+)
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.dynamics import ActionTable
@@ -59,9 +66,10 @@ class LabellingPlanner(PredictiveFrontier):
             self.records.append((o["high"], o["thres"], self.last_action, decision.options.flat_mask(), label))
         if self.policy is None or not decision.options.mask.any():
             return expert
-        return goal_at_cell(
-            view, decision, choose_cell(self.policy, decision, self.predictive.policy_cost_weight_per_m)
+        scores = weighted_scores(
+            self.policy(decision.observation), decision.options, self.predictive.policy_cost_weight_per_m
         )
+        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.predictive))
 
 
 @dataclass(frozen=True)

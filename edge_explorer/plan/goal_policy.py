@@ -10,7 +10,9 @@ the start, when the target is seen or predicted, when a goal failed — :func:`g
   reachable planning node lies within ``goal_radius_m`` of a fused frontier cell.
 
 A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:`GoalPolicyPlanner` takes the best
-valid cell and flies to that cell's goal node along the planning graph (observed free space at the robot's
+valid cell that is worth a look — a view from its goal node shows at least the expert's ``min_gain_cells`` cells
+unknown in the fused map (:func:`worth_a_look`; the issue's "goals that reveal nothing are masked"), the best valid
+cell when none is — and flies to that cell's goal node along the planning graph (observed free space at the robot's
 clearance: a collision-free path by construction), facing the frontier cells near it. When no cell is valid the
 predictive expert's fallbacks apply (observed frontier, then done). The expert
 (:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
@@ -29,8 +31,9 @@ from edge_explorer.mapping.ego import observation_from_maps
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View, goal_candidates
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions, ego_goal_cells, goal_options
-from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
+from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier, visible_unknown
 from edge_explorer.sim.dynamics import ActionTable
+from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 
 GoalPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]  # observation → (59, 59) goal-cell scores
 _TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
@@ -94,9 +97,47 @@ def weighted_scores(scores: np.ndarray, options: GoalOptions, cost_weight_per_m:
     return np.where(options.mask, scores - cost_weight_per_m * np.where(options.mask, options.cost_m, 0.0), -np.inf)
 
 
-def choose_cell(policy: GoalPolicy, decision: GoalDecision, cost_weight_per_m: float = 0.0) -> int:
-    """The best valid flat goal cell by :func:`weighted_scores` (the decision must have one valid cell)."""
-    return int(np.argmax(weighted_scores(policy(decision.observation), decision.options, cost_weight_per_m)))
+class _Gains:
+    """The expert's gain of goal nodes at one decision, measured once per node: how many cells UNKNOWN in the fused
+    map a view from the node shows (:func:`~edge_explorer.plan.predictive.visible_unknown`)."""
+
+    def __init__(self, view: View, decision: GoalDecision, fused_low: np.ndarray, config: PredictiveConfig) -> None:
+        self.view, self.decision, self.config = view, decision, config
+        self.unknown, self.blocking = fused_low == UNKNOWN, fused_low == OCCUPIED
+        self.cells: dict[int, int] = {}
+
+    def worth_a_look(self, cell: int) -> bool:
+        """Whether the view from flat goal cell ``cell``'s node shows at least ``min_gain_cells`` unknown cells."""
+        node = int(self.decision.options.node.flat[cell])
+        if node not in self.cells:
+            xy = self.view.graph.node_xy_m([node])[0]
+            seen = visible_unknown(xy, self.unknown, self.blocking, self.view.maps.low_grid, self.config.sensor.range_m)
+            self.cells[node] = len(seen)
+        return self.cells[node] >= self.config.min_gain_cells
+
+
+def worth_a_look(view: View, decision: GoalDecision, fused_low: np.ndarray, config: PredictiveConfig) -> np.ndarray:
+    """bool (G, G): the valid goal cells whose view shows at least the expert's ``min_gain_cells`` unknown cells of
+    the fused map, or every valid cell when none does. Issue #21 masks goals that reveal nothing; this is the
+    expert's own measure of a goal worth a look (docs/policy/goal_policy.md, session 33)."""
+    gains = _Gains(view, decision, fused_low, config)
+    mask = decision.options.mask
+    worth = np.zeros(mask.size, dtype=bool)
+    for cell in np.flatnonzero(mask):
+        worth[cell] = gains.worth_a_look(int(cell))
+    return worth.reshape(mask.shape) if worth.any() else mask
+
+
+def best_cell_worth_a_look(
+    view: View, decision: GoalDecision, scores: np.ndarray, fused_low: np.ndarray, config: PredictiveConfig
+) -> int:
+    """The best-scored cell of :func:`worth_a_look` (``scores`` from :func:`weighted_scores`), found lazily: cells
+    are checked best first, so a decision usually measures one or two views, not every valid cell's."""
+    flat = scores.ravel()
+    order = np.argsort(-flat, kind="stable")
+    order = order[np.isfinite(flat[order])]
+    gains = _Gains(view, decision, fused_low, config)
+    return next((int(cell) for cell in order if gains.worth_a_look(int(cell))), int(order[0]))
 
 
 def goal_at_cell(view: View, decision: GoalDecision, cell: int) -> Goal:
@@ -129,5 +170,7 @@ class GoalPolicyPlanner(PredictiveFrontier):
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
-        cell = choose_cell(self.policy, decision, self.predictive.policy_cost_weight_per_m)
-        return goal_at_cell(view, decision, cell)
+        scores = weighted_scores(
+            self.policy(decision.observation), decision.options, self.predictive.policy_cost_weight_per_m
+        )
+        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.predictive))

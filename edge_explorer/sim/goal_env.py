@@ -4,8 +4,10 @@ Each step the agent picks one of the 59 × 59 heading-up goal cells (:mod:`edge_
 shared planner loop flies the vehicle there through observed free space with the six motions of the training
 simulator (:class:`~edge_explorer.sim.env.ExplorationEnv`), until the loop asks for the next goal — the target was
 seen or predicted, the goal failed — or the episode ends. Invalid cells are masked (:meth:`GoalEnv.action_masks`,
-the sb3-contrib MaskablePPO convention), so every chosen goal is reachable and a collision can only come from
-motion noise; a masked cell that is chosen anyway is replaced by the valid cell nearest to it (``info
+the sb3-contrib MaskablePPO convention): a cell is valid when its goal is reachable and worth a look — a view from
+it shows at least the expert's ``min_gain_cells`` unknown cells, unless no goal does
+(:func:`~edge_explorer.plan.goal_policy.worth_a_look`, the deployed planner's rule) — so a collision can only come
+from motion noise; a masked cell that is chosen anyway is replaced by the valid cell nearest to it (``info
 ["goal_replaced"]``).
 
 * observation: the :class:`ExplorationEnv` observation at the decision (``high``, ``thres``, ``last_action``);
@@ -34,7 +36,7 @@ from gymnasium import spaces
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import GoalDecision, expert_label, goal_at_cell, goal_decision
+from edge_explorer.plan.goal_policy import GoalDecision, expert_label, goal_at_cell, goal_decision, worth_a_look
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster
@@ -46,9 +48,9 @@ _SHARED_STATE = frozenset({"table", "config", "predictive"})  # planner attribut
 class _DecisionNeeded(Exception):  # noqa: N818 - a signal, not an error
     """Raised inside the planner loop when it needs a goal from the agent (carries the decision's view)."""
 
-    def __init__(self, view: View, pose: Pose, decision: GoalDecision) -> None:
-        super().__init__(view, pose, decision)  # the constructor's arguments as args: it pickles (Ray, processes)
-        self.view, self.pose, self.decision = view, pose, decision
+    def __init__(self, view: View, pose: Pose, decision: GoalDecision, mask: np.ndarray) -> None:
+        super().__init__(view, pose, decision, mask)  # the constructor's arguments as args: it pickles (Ray, processes)
+        self.view, self.pose, self.decision, self.mask = view, pose, decision, mask
 
 
 class _AgentGoals(PredictiveFrontier):
@@ -66,7 +68,7 @@ class _AgentGoals(PredictiveFrontier):
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: nearest observed frontier, or done
-        raise _DecisionNeeded(view, pose, decision)
+        raise _DecisionNeeded(view, pose, decision, worth_a_look(view, decision, fused, self.predictive))
 
     def snapshot(self) -> dict[str, Any]:
         """A deep copy of the loop's state (the table and configs are immutable and shared). The loop changes its
@@ -116,7 +118,7 @@ class GoalEnv(gym.Env):
         cell = int(action)
         if not 0 <= cell < NUM_GOALS:
             raise gym.error.InvalidAction(f"goal cell {cell} is outside 0..{NUM_GOALS - 1}")
-        valid = np.flatnonzero(self._pending.decision.options.mask.ravel())
+        valid = np.flatnonzero(self._pending.mask.ravel())
         replaced = cell not in valid
         if replaced:  # a masked goal: fly the valid goal cell nearest to it instead
             rows, cols = np.divmod(valid, GOAL_GRID_CELLS)
@@ -139,7 +141,7 @@ class GoalEnv(gym.Env):
         """bool (3481,): the goal cells the agent may choose now (all False once the episode has ended)."""
         if self._pending is None:
             return np.zeros(NUM_GOALS, dtype=bool)
-        return self._pending.decision.options.flat_mask()
+        return self._pending.mask.ravel().copy()
 
     def action_costs_m(self) -> np.ndarray:
         """float64 (3481,): the path cost (m) to each goal cell now, inf where masked."""

@@ -1,4 +1,5 @@
-"""The learned planner's choice of goal cell: the policy's score, less the path-cost weight, over valid cells only."""
+"""The learned planner's choice of goal cell: the policy's score, less the path-cost weight, over valid cells only,
+among the goals worth a look."""
 
 from __future__ import annotations
 
@@ -8,9 +9,17 @@ import numpy as np
 import pytest
 
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions
-from edge_explorer.plan.goal_policy import GoalDecision, GoalPolicyPlanner, choose_cell
-from edge_explorer.plan.predictive import PredictiveConfig
+from edge_explorer.plan.goal_policy import (
+    GoalDecision,
+    GoalPolicyPlanner,
+    best_cell_worth_a_look,
+    goal_decision,
+    weighted_scores,
+    worth_a_look,
+)
+from edge_explorer.plan.predictive import PredictiveConfig, visible_unknown
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 from tests.plan.test_policy import nearest_first_scores
@@ -25,6 +34,11 @@ def _decision(valid: dict[int, float]) -> GoalDecision:
     for i, (cell, cost_m) in enumerate(valid.items()):
         node.flat[cell], cost.flat[cell] = i, cost_m
     return GoalDecision({}, GoalOptions(node, cost), np.zeros(0, np.int32))
+
+
+def choose_cell(policy, decision: GoalDecision, cost_weight_per_m: float = 0.0) -> int:
+    """The network's masked argmax (before the planner keeps to goals worth a look)."""
+    return int(np.argmax(weighted_scores(policy(decision.observation), decision.options, cost_weight_per_m)))
 
 
 def _policy(scores: dict[int, float]):
@@ -68,3 +82,57 @@ def test_the_planner_flies_a_cost_weighted_policy_to_full_coverage():
         collisions += int(info["collided"])
         previous = action
     assert info["coverage"] >= 0.95 and collisions == 0
+
+
+def _real_decision():
+    """A decision of the two-room plan at its start, with the planner's view and the observed map as fused map."""
+    rooms = rasterize(two_room_plan(), 0.05)
+    env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=50))
+    env.reset(seed=7, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
+    planner = GoalPolicyPlanner(lambda o: nearest_first_scores(), table=env.table)
+    planner.reset()
+    view = planner.view(env.maps, env.pose)
+    decision = goal_decision(view, env.pose, env.maps.low, 0, planner.config.goal_radius_m)
+    return view, decision, env.maps.low
+
+
+def test_a_goal_that_is_not_worth_a_look_loses_to_the_best_one_that_is():
+    view, decision, fused = _real_decision()
+    valid = np.flatnonzero(decision.options.mask)
+    range_m = PredictiveConfig().sensor.range_m
+    gains = {  # the expert's gain of each valid goal: unknown cells a view from its node shows
+        int(c): len(
+            visible_unknown(
+                view.graph.node_xy_m([int(decision.options.node.flat[c])])[0],
+                fused == UNKNOWN,
+                fused == OCCUPIED,
+                view.maps.low_grid,
+                range_m,
+            )
+        )
+        for c in valid
+    }
+    low, high = min(valid, key=gains.get), max(valid, key=gains.get)
+    assert gains[low] < gains[high]
+    config = PredictiveConfig(min_gain_cells=gains[high])
+    scores = np.full(G * G, -np.inf)
+    scores[valid] = 0.0
+    scores[low], scores[high] = 2.0, 1.0  # the policy prefers the goal that shows less
+    assert best_cell_worth_a_look(view, decision, scores.reshape(G, G), fused, config) == high
+    mask = worth_a_look(view, decision, fused, config)
+    assert mask.flat[high] and not mask.flat[low]
+    # nothing worth a look: every valid goal stays valid and the policy's best wins
+    none = PredictiveConfig(min_gain_cells=10_000)
+    assert (worth_a_look(view, decision, fused, none) == decision.options.mask).all()
+    assert best_cell_worth_a_look(view, decision, scores.reshape(G, G), fused, none) == low
+
+
+def test_the_lazy_choice_is_the_argmax_over_the_goals_worth_a_look():
+    view, decision, fused = _real_decision()
+    config = PredictiveConfig()
+    mask = worth_a_look(view, decision, fused, config)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        scores = np.where(decision.options.mask, rng.normal(size=(G, G)), -np.inf)
+        expected = int(np.argmax(np.where(mask, scores, -np.inf)))
+        assert best_cell_worth_a_look(view, decision, scores, fused, config) == expected
