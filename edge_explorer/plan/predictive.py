@@ -79,11 +79,11 @@ class PredictiveConfig:
     # a low-gain cluster nearer than this share of the best one's path is flown first (choose_cluster). Val plans,
     # 1 run, seed 0: 40-135 33.9 m with 0.3 vs 35.6 m without (0.2: 34.9, 0.4: 35.0, 0.5: 35.9); 136-231 33.7 vs 35.3.
     near_fallback_ratio: float = 0.3
-    # the learned planner (goal_policy.GoalPolicyPlanner) only: its goal is the valid cell of the highest
-    # score − weight × path cost (m); the network sees maps, not path lengths through them. 0.15 shortened val flights
-    # (40-135: 33.45 vs 34.13 m; 136-231: 33.06 vs 34.78) and test/A-D a little, but lengthened the real plans by
-    # +3.0 ± 1.3 m with a collision (docs/policy/goal_policy.md, session 15), so the policy flies alone.
-    policy_cost_weight_per_m: float = 0.0
+    # the learned planner (goal_policy.GoalPolicyPlanner) only: its goal is the best cell worth a look by
+    # score − weight × path cost (m); the network sees maps, not path lengths through them. With the worth-a-look rule
+    # (session 34, val plans, 1 run, seed 0, against weight 0): 0.1 −0.84 / −0.34 m on 40-135 / 136-231; 0.3 −1.32 /
+    # −1.10 / −0.66 m on 40-135 / 136-231 / 232-327; 0.6 −1.40 m on 40-135 (docs/policy/goal_policy.md, session 34).
+    policy_cost_weight_per_m: float = 0.3
 
     def __post_init__(self) -> None:
         if (
