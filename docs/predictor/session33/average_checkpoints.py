@@ -70,7 +70,8 @@ def main() -> None:
     refresh_batchnorm(model, dataset, args.bn_batches, config.batch_size)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_unet(model, args.out)
-    print(f"{len(args.checkpoints)} checkpoints averaged, BatchNorm refreshed on {args.bn_batches} batches → {args.out}")
+    count = len(args.checkpoints)
+    print(f"{count} checkpoints averaged, BatchNorm refreshed on {args.bn_batches} batches → {args.out}")
 
 
 if __name__ == "__main__":

@@ -37,9 +37,7 @@ def _daemon(args: argparse.Namespace) -> None:
 
     report.RunRecord._record_progress = record
     out_dir = args.out.with_suffix("")
-    code = main(
-        ["run", "--plan", args.plan, "--run-index", str(args.run_index), "--no-return", "--out", str(out_dir)]
-    )
+    code = main(["run", "--plan", args.plan, "--run-index", str(args.run_index), "--no-return", "--out", str(out_dir)])
     _write(args.out, [rows])
     sys.exit(code)
 
