@@ -9,8 +9,9 @@ the start, when the target is seen or predicted, when a goal failed — :func:`g
 * the goal options (:mod:`edge_explorer.plan.goal_grid`): the 59 × 59 heading-up goal cells, valid where a
   reachable planning node lies within ``goal_radius_m`` of a fused frontier cell.
 
-A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:`GoalPolicyPlanner` takes the best
-valid cell that is worth a look — a view from its goal node shows at least the expert's ``min_gain_cells`` cells
+A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:`GoalPolicyPlanner` ranks the valid
+cells by score − ``policy_cost_weight_per_m`` × path cost (:func:`weighted_scores`; 0.3 per m since session 34) and
+takes the best one that is worth a look — a view from its goal node shows at least the expert's ``min_gain_cells`` cells
 unknown in the fused map (:func:`worth_a_look`; the issue's "goals that reveal nothing are masked"), the best valid
 cell when none is — and flies to that cell's goal node along the planning graph (observed free space at the robot's
 clearance: a collision-free path by construction), facing the frontier cells near it. When no cell is valid the
