@@ -82,7 +82,7 @@ class PredictiveConfig:
     # the learned planner (goal_policy.GoalPolicyPlanner) only: its goal is the best cell worth a look by
     # score − weight × path cost (m); the network sees maps, not path lengths through them. With the worth-a-look rule
     # (session 34, val plans, 1 run, seed 0, against weight 0): 0.1 −0.84 / −0.34 m on 40-135 / 136-231; 0.3 −1.32 /
-    # −1.10 / −0.66 m on 40-135 / 136-231 / 232-327; 0.6 −1.40 m on 40-135 (docs/policy/goal_policy.md, session 34).
+    # −1.10 / −0.32 m on 40-135 / 136-231 / 232-327; 0.6 −1.40 m on 40-135 (docs/policy/goal_policy.md, session 34).
     policy_cost_weight_per_m: float = 0.3
 
     def __post_init__(self) -> None:
