@@ -120,6 +120,16 @@ def stage_record(run_dir: Path) -> dict[str, Any]:
     }
 
 
+def decision_settings(config: PredictiveConfig | None = None) -> dict[str, Any]:
+    """The planner settings that turn the policy's scores into a goal (the card's ``decision``; ``config`` defaults to
+    today's :class:`PredictiveConfig`): the path-cost weight and the worth-a-look threshold."""
+    config = config or PredictiveConfig()
+    return {
+        "policy_cost_weight_per_m": config.policy_cost_weight_per_m,
+        "min_gain_cells": config.min_gain_cells,
+    }
+
+
 def flight_ready(summary_all: dict[str, Any] | None) -> dict[str, Any]:
     """Whether the daemon flies this policy by default (``edge-explorer run --planner auto``), and why: the building
     evaluation's ``drl`` runs reached 95 % coverage in at least :data:`FLIGHT_READY_SUCCESS` of the runs, with no
@@ -220,10 +230,11 @@ def ship_goal_policy(
             "shape": [1, GOAL_GRID_CELLS, GOAL_GRID_CELLS],
             "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the valid "
             "cell of the highest logit − decision.policy_cost_weight_per_m × path cost in m "
-            "among the goals worth a look (plan.goal_policy.best_cell_worth_a_look), "
+            "among the goals worth a look: ≥ decision.min_gain_cells cells unknown in the fused map in view "
+            "(plan.goal_policy.best_cell_worth_a_look), "
             "flown along observed free space",
         },
-        "decision": {"policy_cost_weight_per_m": PredictiveConfig().policy_cost_weight_per_m},
+        "decision": decision_settings(),
         "reward": {
             "per_decision": "ω·ΔF1(M_thres) − metres flown − l·collisions (sim.goal_env)",
             "f1_weight_omega": env.f1_weight,

@@ -12,9 +12,8 @@ the start, when the target is seen or predicted, when a goal failed — :func:`g
 A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:`GoalPolicyPlanner` ranks the valid
 cells by score − ``policy_cost_weight_per_m`` × path cost (:func:`weighted_scores`; 0.3 per m since session 34) and
 takes the best one that is worth a look — a view from its goal node shows at least the expert's ``min_gain_cells`` cells
-unknown in the fused map, counting a corridor the prediction only began to fill as unknown (:func:`worth_a_look`,
-``policy_open_gain`` since session 35; the issue's "goals that reveal nothing are masked"), the best valid cell when
-none is — and flies to that cell's goal node along the planning graph (observed free space at the robot's
+unknown in the fused map (:func:`worth_a_look`; the issue's "goals that reveal nothing are masked"), the best valid
+cell when none is — and flies to that cell's goal node along the planning graph (observed free space at the robot's
 clearance: a collision-free path by construction), facing the frontier cells near it. When no cell is valid the
 predictive expert's fallbacks apply (observed frontier, then done). The expert
 (:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
@@ -33,9 +32,9 @@ from edge_explorer.mapping.ego import observation_from_maps
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View, goal_candidates
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions, ego_goal_cells, goal_options
-from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier, gain_unknown, visible_unknown
+from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier, visible_unknown
 from edge_explorer.sim.dynamics import ActionTable
-from edge_explorer.world.grid import OCCUPIED
+from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 
 GoalPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]  # observation → (59, 59) goal-cell scores
 _TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
@@ -100,15 +99,12 @@ def weighted_scores(scores: np.ndarray, options: GoalOptions, cost_weight_per_m:
 
 
 class _Gains:
-    """The gain of goal nodes at one decision, measured once per node: how many cells unknown in the fused map a view
-    from the node shows (:func:`~edge_explorer.plan.predictive.visible_unknown`). Unknown is the expert's fused
-    UNKNOWN, plus with ``policy_open_gain`` the predicted-free cells that lead on to it
-    (:func:`~edge_explorer.plan.predictive.gain_unknown`)."""
+    """The expert's gain of goal nodes at one decision, measured once per node: how many cells UNKNOWN in the fused
+    map a view from the node shows (:func:`~edge_explorer.plan.predictive.visible_unknown`)."""
 
     def __init__(self, view: View, decision: GoalDecision, fused_low: np.ndarray, config: PredictiveConfig) -> None:
         self.view, self.decision, self.config = view, decision, config
-        self.unknown = gain_unknown(view.maps.low, fused_low, config.policy_open_gain)
-        self.blocking = fused_low == OCCUPIED
+        self.unknown, self.blocking = fused_low == UNKNOWN, fused_low == OCCUPIED
         self.cells: dict[int, int] = {}
 
     def worth_a_look(self, cell: int) -> bool:

@@ -84,11 +84,6 @@ class PredictiveConfig:
     # (session 34, val plans, 1 run, seed 0, against weight 0): 0.1 −0.84 / −0.34 m on 40-135 / 136-231; 0.3 −1.32 /
     # −1.10 / −0.32 m on 40-135 / 136-231 / 232-327; 0.6 −1.40 m on 40-135 (docs/policy/goal_policy.md, session 34).
     policy_cost_weight_per_m: float = 0.3
-    # the learned planner only: its worth-a-look gain counts the predicted-free cells open_unknown joins to the fused
-    # unknown, as the frontier does with ``open_prediction`` (gain_unknown), so a corridor the prediction began to
-    # fill stays worth a look. Session 35, val plans, 1 run, seed 0, against False: −0.97 ± 0.56 / −0.39 ± 0.44 /
-    # −0.75 ± 0.61 m on 40-135 / 136-231 / 232-327. The expert's gain stays plain: with it +0.54 ± 0.44 m on 40-135.
-    policy_open_gain: bool = True
 
     def __post_init__(self) -> None:
         if (
@@ -127,11 +122,6 @@ def open_unknown(observed_low: np.ndarray, fused_low: np.ndarray) -> np.ndarray:
     _, labels = cv2.connectedComponents(region, connectivity=8)
     open_labels = np.unique(labels[unknown.astype(bool)])
     return np.isin(labels, open_labels[open_labels > 0])
-
-
-def gain_unknown(observed_low: np.ndarray, fused_low: np.ndarray, open_gain: bool) -> np.ndarray:
-    """bool: the cells a view's gain counts — :func:`open_unknown` with ``open_gain``, else fused UNKNOWN."""
-    return open_unknown(observed_low, fused_low) if open_gain else fused_low == UNKNOWN
 
 
 def visible_unknown(

@@ -11,7 +11,6 @@ from edge_explorer.plan.predictive import (
     PredictiveFrontier,
     choose_cluster,
     fused_frontier_mask,
-    gain_unknown,
     visible_unknown,
 )
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
@@ -45,21 +44,6 @@ def test_open_prediction_keeps_a_corridor_mouth_the_prediction_only_began_to_fil
     assert not fused_frontier_mask(observed, fused, open_prediction=True)[:, :2].any()
     fused[:, 6] = OCCUPIED  # the predictor closes the corridor off with a wall: filled, no target
     assert not fused_frontier_mask(observed, fused, open_prediction=True).any()
-
-
-def test_open_gain_counts_a_corridor_the_prediction_only_began_to_fill():
-    observed = np.full((5, 12), UNKNOWN, dtype=np.int8)
-    observed[:, :3] = FREE
-    fused = observed.copy()
-    fused[:, 3:6] = FREE  # predicted free, leading on to the unknown beyond
-    fused[0, 11] = OCCUPIED  # a predicted wall counts in neither
-    plain = gain_unknown(observed, fused, open_gain=False)
-    assert plain.sum() == 5 * 6 - 1 and not plain[:, :6].any()  # only the fused UNKNOWN cells
-    opened = gain_unknown(observed, fused, open_gain=True)
-    assert opened[:, 3:6].all() and (opened == (plain | (fused == FREE) & (observed == UNKNOWN))).all()
-    assert not opened[:, :3].any() and not opened[0, 11]
-    fused[:, 6] = OCCUPIED  # the prediction closes the corridor: its free cells lead nowhere unknown
-    assert not gain_unknown(observed, fused, open_gain=True)[:, 3:6].any()
 
 
 def test_a_low_gain_cluster_on_the_way_is_flown_before_a_far_rich_one():

@@ -14,13 +14,12 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from trace_drl import record_spec
+from trace_drl import raster_of, record_spec
 
 from edge_explorer.bench import explore as bench
 from edge_explorer.plan import goal_policy as gp
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.world.catalog import load_building
 
 
 class ExplainingPlanner(gp.GoalPolicyPlanner):
@@ -74,7 +73,7 @@ def main() -> None:
     parser.add_argument("--policy", default="models/policy/policy.safetensors")
     args = parser.parse_args()
     spec = record_spec(args.bench_json, args.plan, args.run)
-    raster = load_building(spec["plan"])
+    raster = raster_of(spec["plan"])
     predictor = bench.load_predictor(args.predictor)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec["max_steps"], thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)

@@ -19,7 +19,8 @@ from edge_explorer.bench import explore as bench
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.world.catalog import load_building
+from edge_explorer.world.catalog import load_building, plan_to_raster
+from edge_explorer.world.dataset import DEFAULT_SEED, generate_checked
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "session20"))
 from trace_run import draw  # noqa: E402
@@ -34,9 +35,16 @@ def record_spec(bench_json: str, plan: str, run: int, method: str = "drl+pred") 
     raise SystemExit(f"{bench_json}: no {method} run {run} on {plan}")
 
 
+def raster_of(plan: str):  # noqa: ANN201 - a PlanRaster
+    """A bundled building, a plan file, or a test-split plan by its benchmark name (``test-00051``)."""
+    if plan.startswith("test-"):
+        return plan_to_raster(generate_checked(DEFAULT_SEED, "test", int(plan.removeprefix("test-"))))
+    return load_building(plan)
+
+
 def fly(spec: dict, predictor_ref: str, policy_ref: str) -> dict:
     """Path, coverage and goals of the run ``spec`` describes (stops at 95 % coverage and correct coverage)."""
-    raster = load_building(spec["plan"])
+    raster = raster_of(spec["plan"])
     predictor = bench.load_predictor(predictor_ref)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec["max_steps"], thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
