@@ -36,8 +36,14 @@ def fly(plan: str, method: str, run: int, predictor_ref: str = "models/predictor
     planner.reset()
     seed = bench.run_seed(0, raster.name, run)
     _, info = env.reset(seed=seed, options={"start_pose": bench.start_pose(raster, 0)})
+    return trace_flight(env, planner, info, config.max_steps)
+
+
+def trace_flight(env: ExplorationEnv, planner, info: dict, max_steps: int) -> dict:  # noqa: ANN001 - a GoalPlanner
+    """Fly ``planner`` in the freshly reset ``env`` (``info`` from its reset) until 95 % coverage and correct coverage
+    or ``max_steps``: path, coverage and the goals chosen (path, coverage and goal position when each was chosen)."""
     xy, coverage, path, goals, previous, last = [env.pose[:2]], [info["coverage"]], [0.0], [], 0, None
-    while (coverage[-1] < 0.95 or info["correct_coverage"] < 0.95) and len(path) <= config.max_steps:
+    while (coverage[-1] < 0.95 or info["correct_coverage"] < 0.95) and len(path) <= max_steps:
         action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
         if action is None:
             break

@@ -23,7 +23,7 @@ from edge_explorer.world.catalog import load_building, plan_to_raster
 from edge_explorer.world.dataset import DEFAULT_SEED, generate_checked
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "session20"))
-from trace_run import draw  # noqa: E402
+from trace_run import draw, trace_flight  # noqa: E402
 
 
 def record_spec(bench_json: str, plan: str, run: int, method: str = "drl+pred") -> dict:
@@ -51,30 +51,7 @@ def fly(spec: dict, predictor_ref: str, policy_ref: str) -> dict:
     planner = GoalPolicyPlanner(bench.load_policy(policy_ref), table=env.table)
     planner.reset()
     _, info = env.reset(seed=spec["seed"], options={"start_pose": np.asarray(spec["start_pose"])})
-    xy, coverage, path, goals, previous, last = [env.pose[:2]], [info["coverage"]], [0.0], [], 0, None
-    while (coverage[-1] < 0.95 or info["correct_coverage"] < 0.95) and len(path) <= config.max_steps:
-        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
-        if action is None:
-            break
-        goal = planner._goal  # the goal now being flown (a diagnostic reads the loop's state)
-        if goal is not None and goal is not last:
-            goals.append((path[-1], coverage[-1], *goal.path_xy_m[-1]))
-            last = goal
-        _, _, _, _, info = env.step(action)
-        previous = 0 if info["collided"] else action
-        xy.append(env.pose[:2])
-        coverage.append(info["coverage"])
-        path.append(info["path_length_m"])
-    hits = np.flatnonzero(np.asarray(coverage) >= 0.95)
-    return {
-        "truth": env._truth.truth_low,
-        "grid": env.maps.low_grid,
-        "xy": np.array(xy),
-        "coverage": coverage,
-        "path": path,
-        "goals": goals,
-        "path_at_95": float(path[hits[0]]) if len(hits) else None,
-    }
+    return trace_flight(env, planner, info, config.max_steps)
 
 
 def main() -> None:
