@@ -122,11 +122,13 @@ def stage_record(run_dir: Path) -> dict[str, Any]:
 
 def decision_settings(config: PredictiveConfig | None = None) -> dict[str, Any]:
     """The planner settings that turn the policy's scores into a goal (the card's ``decision``; ``config`` defaults to
-    today's :class:`PredictiveConfig`): the path-cost weight and the worth-a-look threshold."""
+    today's :class:`PredictiveConfig`): the path-cost weight, the worth-a-look threshold and the detour cap."""
     config = config or PredictiveConfig()
     return {
         "policy_cost_weight_per_m": config.policy_cost_weight_per_m,
         "min_gain_cells": config.min_gain_cells,
+        "policy_max_detour_m": config.policy_max_detour_m,
+        "policy_detour_min_cells": config.policy_detour_min_cells,
     }
 
 
@@ -230,7 +232,8 @@ def ship_goal_policy(
             "shape": [1, GOAL_GRID_CELLS, GOAL_GRID_CELLS],
             "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the valid "
             "cell of the highest logit − decision.policy_cost_weight_per_m × path cost in m "
-            "among the goals worth a look: ≥ decision.min_gain_cells cells unknown in the fused map in view "
+            "among the goals worth a look: ≥ decision.min_gain_cells cells unknown in the fused map in view, "
+            "unless that is a detour of more than decision.policy_max_detour_m from the best-ranked cell "
             "(plan.goal_policy.best_cell_worth_a_look), "
             "flown along observed free space",
         },

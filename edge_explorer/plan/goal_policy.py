@@ -13,9 +13,10 @@ A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:
 cells by score − ``policy_cost_weight_per_m`` × path cost (:func:`weighted_scores`; 0.3 per m since session 34) and
 takes the best one that is worth a look — a view from its goal node shows at least the expert's ``min_gain_cells`` cells
 unknown in the fused map (:func:`worth_a_look`; the issue's "goals that reveal nothing are masked"), the best valid
-cell when none is — and flies to that cell's goal node along the planning graph (observed free space at the robot's
-clearance: a collision-free path by construction), facing the frontier cells near it. When no cell is valid the
-predictive expert's fallbacks apply (observed frontier, then done). The expert
+cell when none is, and the best-ranked cell itself when the one worth a look is a detour of more than
+``policy_max_detour_m`` (session 35) — and flies to that cell's goal node along the planning graph (observed free
+space at the robot's clearance: a collision-free path by construction), facing the frontier cells near it. When no
+cell is valid the predictive expert's fallbacks apply (observed frontier, then done). The expert
 (:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
 same decisions (:func:`expert_label`) for behaviour cloning.
 """
@@ -107,14 +108,18 @@ class _Gains:
         self.unknown, self.blocking = fused_low == UNKNOWN, fused_low == OCCUPIED
         self.cells: dict[int, int] = {}
 
-    def worth_a_look(self, cell: int) -> bool:
-        """Whether the view from flat goal cell ``cell``'s node shows at least ``min_gain_cells`` unknown cells."""
+    def count(self, cell: int) -> int:
+        """How many unknown cells the view from flat goal cell ``cell``'s node shows."""
         node = int(self.decision.options.node.flat[cell])
         if node not in self.cells:
             xy = self.view.graph.node_xy_m([node])[0]
             seen = visible_unknown(xy, self.unknown, self.blocking, self.view.maps.low_grid, self.config.sensor.range_m)
             self.cells[node] = len(seen)
-        return self.cells[node] >= self.config.min_gain_cells
+        return self.cells[node]
+
+    def worth_a_look(self, cell: int) -> bool:
+        """Whether the view from flat goal cell ``cell``'s node shows at least ``min_gain_cells`` unknown cells."""
+        return self.count(cell) >= self.config.min_gain_cells
 
 
 def worth_a_look(view: View, decision: GoalDecision, fused_low: np.ndarray, config: PredictiveConfig) -> np.ndarray:
@@ -133,12 +138,20 @@ def best_cell_worth_a_look(
     view: View, decision: GoalDecision, scores: np.ndarray, fused_low: np.ndarray, config: PredictiveConfig
 ) -> int:
     """The best-scored cell of :func:`worth_a_look` (``scores`` from :func:`weighted_scores`), found lazily: cells
-    are checked best first, so a decision usually measures one or two views, not every valid cell's."""
+    are checked best first, so a decision usually measures one or two views, not every valid cell's. The best-scored
+    cell of all is taken instead when the one worth a look would cost more than ``policy_max_detour_m`` more path and
+    a view from the best still shows ``policy_detour_min_cells``: the rule must not send the vehicle across the
+    building from a place it will have to come back to (building D, docs/policy/goal_policy.md, session 35)."""
     flat = scores.ravel()
     order = np.argsort(-flat, kind="stable")
     order = order[np.isfinite(flat[order])]
     gains = _Gains(view, decision, fused_low, config)
-    return next((int(cell) for cell in order if gains.worth_a_look(int(cell))), int(order[0]))
+    cell = next((int(cell) for cell in order if gains.worth_a_look(int(cell))), int(order[0]))
+    best = int(order[0])
+    cost = decision.options.cost_m.ravel()
+    if cost[cell] - cost[best] > config.policy_max_detour_m and gains.count(best) >= config.policy_detour_min_cells:
+        return best
+    return cell
 
 
 def goal_at_cell(view: View, decision: GoalDecision, cell: int) -> Goal:

@@ -84,6 +84,14 @@ class PredictiveConfig:
     # (session 34, val plans, 1 run, seed 0, against weight 0): 0.1 −0.84 / −0.34 m on 40-135 / 136-231; 0.3 −1.32 /
     # −1.10 / −0.32 m on 40-135 / 136-231 / 232-327; 0.6 −1.40 m on 40-135 (docs/policy/goal_policy.md, session 34).
     policy_cost_weight_per_m: float = 0.3
+    # the learned planner only: its best-ranked goal is flown though not worth a look when the best goal worth one
+    # would cost more than policy_max_detour_m more path and a view from the ranked goal shows policy_detour_min_cells
+    # (goal_policy.best_cell_worth_a_look). Set a priori (10 m; a third of min_gain_cells) after building D's runs 0
+    # and 6 (session 35). Val plans, 1 run, seed 0, against no cap: −0.39 ± 0.22 / −0.04 ± 0.10 / −0.01 ± 0.01 m on
+    # 40-135 / 136-231 / 232-327; 9 of 288 plans change, 7 shorter (47.8 → 33.1, 66.9 → 57.6, 52.1 → 39.3,
+    # 40.0 → 31.8 m) and 2 longer (+0.4, +3.9 m).
+    policy_max_detour_m: float = 10.0
+    policy_detour_min_cells: int = 10
 
     def __post_init__(self) -> None:
         if (
@@ -93,10 +101,12 @@ class PredictiveConfig:
             or self.gain_exponent < 0
             or self.near_fallback_ratio < 0
             or self.policy_cost_weight_per_m < 0
+            or self.policy_max_detour_m < 0
+            or self.policy_detour_min_cells < 0
         ):
             raise ValueError(
                 "cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent, "
-                "near_fallback_ratio, policy_cost_weight_per_m ≥ 0"
+                "near_fallback_ratio, policy_cost_weight_per_m, policy_max_detour_m, policy_detour_min_cells ≥ 0"
             )
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")

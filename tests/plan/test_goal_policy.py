@@ -96,22 +96,21 @@ def _real_decision():
     return view, decision, env.maps.low
 
 
+def _view_cells(view, decision, fused, cell: int) -> np.ndarray:  # noqa: ANN001 - the fixture's objects
+    """The unknown cells a view from goal cell ``cell``'s node shows: the expert's gain of that goal."""
+    return visible_unknown(
+        view.graph.node_xy_m([int(decision.options.node.flat[cell])])[0],
+        fused == UNKNOWN,
+        fused == OCCUPIED,
+        view.maps.low_grid,
+        PredictiveConfig().sensor.range_m,
+    )
+
+
 def test_a_goal_that_is_not_worth_a_look_loses_to_the_best_one_that_is():
     view, decision, fused = _real_decision()
     valid = np.flatnonzero(decision.options.mask)
-    range_m = PredictiveConfig().sensor.range_m
-    gains = {  # the expert's gain of each valid goal: unknown cells a view from its node shows
-        int(c): len(
-            visible_unknown(
-                view.graph.node_xy_m([int(decision.options.node.flat[c])])[0],
-                fused == UNKNOWN,
-                fused == OCCUPIED,
-                view.maps.low_grid,
-                range_m,
-            )
-        )
-        for c in valid
-    }
+    gains = {int(c): len(_view_cells(view, decision, fused, int(c))) for c in valid}
     low, high = min(valid, key=gains.get), max(valid, key=gains.get)
     assert gains[low] < gains[high]
     config = PredictiveConfig(min_gain_cells=gains[high])
@@ -129,10 +128,35 @@ def test_a_goal_that_is_not_worth_a_look_loses_to_the_best_one_that_is():
 
 def test_the_lazy_choice_is_the_argmax_over_the_goals_worth_a_look():
     view, decision, fused = _real_decision()
-    config = PredictiveConfig()
+    config = PredictiveConfig(policy_max_detour_m=math.inf)
     mask = worth_a_look(view, decision, fused, config)
     rng = np.random.default_rng(0)
     for _ in range(20):
         scores = np.where(decision.options.mask, rng.normal(size=(G, G)), -np.inf)
         expected = int(np.argmax(np.where(mask, scores, -np.inf)))
         assert best_cell_worth_a_look(view, decision, scores, fused, config) == expected
+
+
+def test_the_best_ranked_goal_is_kept_when_the_one_worth_a_look_is_a_long_detour():
+    view, decision, fused = _real_decision()
+    valid = [int(c) for c in np.flatnonzero(decision.options.mask)]
+    gains = {c: len(_view_cells(view, decision, fused, c)) for c in valid}
+    cost = decision.options.cost_m.ravel()
+    near, far = min(
+        ((a, b) for a in valid for b in valid if gains[a] < gains[b] and cost[a] < cost[b]),
+        key=lambda pair: cost[pair[0]] - cost[pair[1]],  # the longest detour the fixture offers
+    )
+    detour_m = float(cost[far] - cost[near])
+    scores = np.full(G * G, -np.inf)
+    scores[valid] = 0.0
+    scores[near], scores[far] = 2.0, 1.0  # the policy ranks the near goal first; only the far one is worth a look
+    scores = scores.reshape(G, G)
+    rule = dict(min_gain_cells=gains[far], policy_detour_min_cells=gains[near])
+    capped = PredictiveConfig(**rule, policy_max_detour_m=0.5 * detour_m)
+    assert best_cell_worth_a_look(view, decision, scores, fused, capped) == near
+    uncapped = PredictiveConfig(**rule, policy_max_detour_m=detour_m)  # a detour up to the cap is flown
+    assert best_cell_worth_a_look(view, decision, scores, fused, uncapped) == far
+    blind = PredictiveConfig(
+        min_gain_cells=gains[far], policy_max_detour_m=0.5 * detour_m, policy_detour_min_cells=gains[near] + 1
+    )  # the near goal shows too little even for the cap
+    assert best_cell_worth_a_look(view, decision, scores, fused, blind) == far
