@@ -122,13 +122,15 @@ def stage_record(run_dir: Path) -> dict[str, Any]:
 
 def decision_settings(config: PredictiveConfig | None = None) -> dict[str, Any]:
     """The planner settings that turn the policy's scores into a goal (the card's ``decision``; ``config`` defaults to
-    today's :class:`PredictiveConfig`): the path-cost weight, the worth-a-look threshold and the detour cap."""
+    today's :class:`PredictiveConfig`): the path-cost weight, the worth-a-look threshold, the detour cap and the
+    view-gain weight."""
     config = config or PredictiveConfig()
     return {
         "policy_cost_weight_per_m": config.policy_cost_weight_per_m,
         "min_gain_cells": config.min_gain_cells,
         "policy_max_detour_m": config.policy_max_detour_m,
         "policy_detour_min_cells": config.policy_detour_min_cells,
+        "policy_gain_weight": config.policy_gain_weight,
     }
 
 

@@ -134,6 +134,17 @@ def worth_a_look(view: View, decision: GoalDecision, fused_low: np.ndarray, conf
     return worth.reshape(mask.shape) if worth.any() else mask
 
 
+def with_view_gain(flat_scores: np.ndarray, gains: _Gains, weight: float) -> np.ndarray:
+    """``flat_scores`` (flat goal cells, −inf where masked) plus ``weight`` × ln(1 + the unknown cells a view from each
+    valid cell shows): the policy ranks goals by what it learned from its teacher, which preferred near goals, and
+    this adds what each view would reveal on this map. Logarithmic, so a view of 500 cells outranks one of 50 by
+    2.3 × ``weight``, not tenfold."""
+    out = np.asarray(flat_scores, dtype=np.float64).copy()
+    for cell in np.flatnonzero(np.isfinite(out)):
+        out[cell] += weight * math.log1p(gains.count(int(cell)))
+    return out
+
+
 def best_cell_worth_a_look(
     view: View, decision: GoalDecision, scores: np.ndarray, fused_low: np.ndarray, config: PredictiveConfig
 ) -> int:
@@ -141,11 +152,16 @@ def best_cell_worth_a_look(
     are checked best first, so a decision usually measures one or two views, not every valid cell's. The best-scored
     cell of all is taken instead when the one worth a look would cost more than ``policy_max_detour_m`` more path and
     a view from the best still shows ``policy_detour_min_cells``: the rule must not send the vehicle across the
-    building from a place it will have to come back to (building D, docs/policy/goal_policy.md, session 35)."""
+    building from a place it will have to come back to (building D, docs/policy/goal_policy.md, session 35).
+
+    With ``policy_gain_weight`` > 0 every valid cell's view is measured and the scores gain that weight × ln(1 + its
+    unknown cells) first (:func:`with_view_gain`; building C's short legs, session 36)."""
+    gains = _Gains(view, decision, fused_low, config)
     flat = scores.ravel()
+    if config.policy_gain_weight > 0:
+        flat = with_view_gain(flat, gains, config.policy_gain_weight)
     order = np.argsort(-flat, kind="stable")
     order = order[np.isfinite(flat[order])]
-    gains = _Gains(view, decision, fused_low, config)
     cell = next((int(cell) for cell in order if gains.worth_a_look(int(cell))), int(order[0]))
     best = int(order[0])
     cost = decision.options.cost_m.ravel()

@@ -92,6 +92,11 @@ class PredictiveConfig:
     # 40.0 → 31.8 m) and 2 longer (+0.4, +3.9 m).
     policy_max_detour_m: float = 10.0
     policy_detour_min_cells: int = 10
+    # the learned planner only: each valid goal's score gains policy_gain_weight × ln(1 + unknown cells a view from it
+    # shows) before the goal is picked, so a goal showing ten times more is worth ~2.3 × the weight more score
+    # (goal_policy.best_cell_worth_a_look). Aimed at building C's short legs (session 36: the policy flew 1.5 m to a
+    # view of 52 cells past views of 500 cells 4 m away).
+    policy_gain_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if (
@@ -103,10 +108,12 @@ class PredictiveConfig:
             or self.policy_cost_weight_per_m < 0
             or self.policy_max_detour_m < 0
             or self.policy_detour_min_cells < 0
+            or self.policy_gain_weight < 0
         ):
             raise ValueError(
                 "cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent, "
-                "near_fallback_ratio, policy_cost_weight_per_m, policy_max_detour_m, policy_detour_min_cells ≥ 0"
+                "near_fallback_ratio, policy_cost_weight_per_m, policy_max_detour_m, policy_detour_min_cells, "
+                "policy_gain_weight ≥ 0"
             )
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")

@@ -160,3 +160,22 @@ def test_the_best_ranked_goal_is_kept_when_the_one_worth_a_look_is_a_long_detour
         min_gain_cells=gains[far], policy_max_detour_m=0.5 * detour_m, policy_detour_min_cells=gains[near] + 1
     )  # the near goal shows too little even for the cap
     assert best_cell_worth_a_look(view, decision, scores, fused, blind) == far
+
+
+def test_the_view_gain_term_lets_a_much_larger_view_outrank_a_better_scored_goal():
+    view, decision, fused = _real_decision()
+    valid = [int(c) for c in np.flatnonzero(decision.options.mask)]
+    gains = {c: len(_view_cells(view, decision, fused, c)) for c in valid}
+    small, large = min(valid, key=gains.get), max(valid, key=gains.get)
+    margin = math.log1p(gains[large]) - math.log1p(gains[small])
+    assert margin > 0
+    scores = np.full(G * G, -np.inf)
+    scores[valid] = -10.0
+    scores[small], scores[large] = 1.0, 0.0  # the policy prefers the smaller view by 1
+    scores = scores.reshape(G, G)
+    rule = dict(min_gain_cells=0, policy_max_detour_m=math.inf)
+    for weight, expected in ((0.0, small), (0.5 / margin, small), (2.0 / margin, large)):
+        config = PredictiveConfig(**rule, policy_gain_weight=weight)
+        assert best_cell_worth_a_look(view, decision, scores, fused, config) == expected, weight
+    with pytest.raises(ValueError, match="policy_gain_weight"):
+        PredictiveConfig(policy_gain_weight=-1.0)
