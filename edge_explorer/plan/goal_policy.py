@@ -121,28 +121,43 @@ class _Gains:
         """Whether the view from flat goal cell ``cell``'s node shows at least ``min_gain_cells`` unknown cells."""
         return self.count(cell) >= self.config.min_gain_cells
 
+    def counts(self) -> np.ndarray:
+        """int (G, G): :meth:`count` of every valid goal cell, 0 where masked."""
+        mask = self.decision.options.mask
+        cells = np.zeros(mask.size, dtype=np.int64)
+        for cell in np.flatnonzero(mask):
+            cells[cell] = self.count(int(cell))
+        return cells.reshape(mask.shape)
+
+
+def view_cells(view: View, decision: GoalDecision, fused_low: np.ndarray, config: PredictiveConfig) -> np.ndarray:
+    """int (G, G): how many cells UNKNOWN in the fused map a view from each valid goal cell shows (0 where masked):
+    the expert's gain, which :func:`worth_a_look` and the planner's view-gain term read."""
+    return _Gains(view, decision, fused_low, config).counts()
+
+
+def worth_a_look_of(mask: np.ndarray, cells: np.ndarray, min_gain_cells: int) -> np.ndarray:
+    """bool, ``mask``'s shape: the valid cells whose view shows at least ``min_gain_cells`` (``cells`` from
+    :func:`view_cells`), or every valid cell when none does."""
+    worth = mask & (cells >= min_gain_cells)
+    return worth if worth.any() else mask
+
 
 def worth_a_look(view: View, decision: GoalDecision, fused_low: np.ndarray, config: PredictiveConfig) -> np.ndarray:
     """bool (G, G): the valid goal cells whose view shows at least the expert's ``min_gain_cells`` unknown cells of
     the fused map, or every valid cell when none does. Issue #21 masks goals that reveal nothing; this is the
     expert's own measure of a goal worth a look (docs/policy/goal_policy.md, session 33)."""
-    gains = _Gains(view, decision, fused_low, config)
-    mask = decision.options.mask
-    worth = np.zeros(mask.size, dtype=bool)
-    for cell in np.flatnonzero(mask):
-        worth[cell] = gains.worth_a_look(int(cell))
-    return worth.reshape(mask.shape) if worth.any() else mask
+    cells = view_cells(view, decision, fused_low, config)
+    return worth_a_look_of(decision.options.mask, cells, config.min_gain_cells)
 
 
-def with_view_gain(flat_scores: np.ndarray, gains: _Gains, weight: float) -> np.ndarray:
-    """``flat_scores`` (flat goal cells, −inf where masked) plus ``weight`` × ln(1 + the unknown cells a view from each
-    valid cell shows): the policy ranks goals by what it learned from its teacher, which preferred near goals, and
-    this adds what each view would reveal on this map. Logarithmic, so a view of 500 cells outranks one of 50 by
-    2.3 × ``weight``, not tenfold."""
-    out = np.asarray(flat_scores, dtype=np.float64).copy()
-    for cell in np.flatnonzero(np.isfinite(out)):
-        out[cell] += weight * math.log1p(gains.count(int(cell)))
-    return out
+def with_view_gain(scores: np.ndarray, cells: np.ndarray, weight: float) -> np.ndarray:
+    """``scores`` (goal cells, −inf where masked) plus ``weight`` × ln(1 + ``cells``), the unknown cells a view from
+    each shows (:func:`view_cells`, same shape): the policy ranks goals by what it learned from its teacher, which
+    preferred near goals, and this adds what each view would reveal on this map. Logarithmic, so a view of 500 cells
+    outranks one of 50 by 2.3 × ``weight``, not tenfold."""
+    scores = np.asarray(scores, dtype=np.float64)
+    return np.where(np.isfinite(scores), scores + weight * np.log1p(cells), scores)
 
 
 def best_cell_worth_a_look(
@@ -159,7 +174,7 @@ def best_cell_worth_a_look(
     gains = _Gains(view, decision, fused_low, config)
     flat = scores.ravel()
     if config.policy_gain_weight > 0:
-        flat = with_view_gain(flat, gains, config.policy_gain_weight)
+        flat = with_view_gain(flat, gains.counts().ravel(), config.policy_gain_weight)
     order = np.argsort(-flat, kind="stable")
     order = order[np.isfinite(flat[order])]
     cell = next((int(cell) for cell in order if gains.worth_a_look(int(cell))), int(order[0]))

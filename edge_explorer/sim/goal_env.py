@@ -20,7 +20,9 @@ from motion noise; a masked cell that is chosen anyway is replaced by the valid 
 When no goal cell is valid the predictive expert's fallbacks fly on (nearest observed frontier) without asking the
 agent. :meth:`GoalEnv.expert_action` is the expert's choice at the current decision (DAgger labels, evaluation).
 The agent's cell is flown as chosen; the deployed planner ranks the network's scores less a path-cost term
-(:func:`~edge_explorer.plan.goal_policy.weighted_scores`), whose costs :meth:`GoalEnv.action_costs_m` gives.
+(:func:`~edge_explorer.plan.goal_policy.weighted_scores`), whose costs :meth:`GoalEnv.action_costs_m` gives, plus a
+view-gain term (:func:`~edge_explorer.plan.goal_policy.with_view_gain`), whose views
+:meth:`GoalEnv.action_view_cells` gives.
 """
 
 from __future__ import annotations
@@ -36,7 +38,14 @@ from gymnasium import spaces
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import GoalDecision, expert_label, goal_at_cell, goal_decision, worth_a_look
+from edge_explorer.plan.goal_policy import (
+    GoalDecision,
+    expert_label,
+    goal_at_cell,
+    goal_decision,
+    view_cells,
+    worth_a_look_of,
+)
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster
@@ -48,9 +57,10 @@ _SHARED_STATE = frozenset({"table", "config", "predictive"})  # planner attribut
 class _DecisionNeeded(Exception):  # noqa: N818 - a signal, not an error
     """Raised inside the planner loop when it needs a goal from the agent (carries the decision's view)."""
 
-    def __init__(self, view: View, pose: Pose, decision: GoalDecision, mask: np.ndarray) -> None:
-        super().__init__(view, pose, decision, mask)  # the constructor's arguments as args: it pickles (Ray, processes)
-        self.view, self.pose, self.decision, self.mask = view, pose, decision, mask
+    def __init__(self, view: View, pose: Pose, decision: GoalDecision, mask: np.ndarray, cells: np.ndarray) -> None:
+        # the constructor's arguments as args: it pickles (Ray, processes)
+        super().__init__(view, pose, decision, mask, cells)
+        self.view, self.pose, self.decision, self.mask, self.cells = view, pose, decision, mask, cells
 
 
 class _AgentGoals(PredictiveFrontier):
@@ -68,7 +78,9 @@ class _AgentGoals(PredictiveFrontier):
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: nearest observed frontier, or done
-        raise _DecisionNeeded(view, pose, decision, worth_a_look(view, decision, fused, self.predictive))
+        cells = view_cells(view, decision, fused, self.predictive)
+        mask = worth_a_look_of(decision.options.mask, cells, self.predictive.min_gain_cells)
+        raise _DecisionNeeded(view, pose, decision, mask, cells)
 
     def snapshot(self) -> dict[str, Any]:
         """A deep copy of the loop's state (the table and configs are immutable and shared). The loop changes its
@@ -148,6 +160,13 @@ class GoalEnv(gym.Env):
         if self._pending is None:
             return np.full(NUM_GOALS, np.inf)
         return self._pending.decision.options.cost_m.ravel()
+
+    def action_view_cells(self) -> np.ndarray:
+        """int64 (3481,): how many unknown cells a view from each valid goal cell shows now, 0 where masked (the
+        deployed planner's view-gain term, :func:`~edge_explorer.plan.goal_policy.with_view_gain`)."""
+        if self._pending is None:
+            return np.zeros(NUM_GOALS, dtype=np.int64)
+        return self._pending.cells.ravel().copy()
 
     def expert_action(self) -> int | None:
         """The predictive expert's goal cell at this decision (``None`` if it would fly outside the goal grid)."""

@@ -113,7 +113,7 @@ def test_a_goal_that_is_not_worth_a_look_loses_to_the_best_one_that_is():
     gains = {int(c): len(_view_cells(view, decision, fused, int(c))) for c in valid}
     low, high = min(valid, key=gains.get), max(valid, key=gains.get)
     assert gains[low] < gains[high]
-    config = PredictiveConfig(min_gain_cells=gains[high])
+    config = PredictiveConfig(min_gain_cells=gains[high], policy_gain_weight=0.0)
     scores = np.full(G * G, -np.inf)
     scores[valid] = 0.0
     scores[low], scores[high] = 2.0, 1.0  # the policy prefers the goal that shows less
@@ -121,19 +121,23 @@ def test_a_goal_that_is_not_worth_a_look_loses_to_the_best_one_that_is():
     mask = worth_a_look(view, decision, fused, config)
     assert mask.flat[high] and not mask.flat[low]
     # nothing worth a look: every valid goal stays valid and the policy's best wins
-    none = PredictiveConfig(min_gain_cells=10_000)
+    none = PredictiveConfig(min_gain_cells=10_000, policy_gain_weight=0.0)
     assert (worth_a_look(view, decision, fused, none) == decision.options.mask).all()
     assert best_cell_worth_a_look(view, decision, scores.reshape(G, G), fused, none) == low
 
 
-def test_the_lazy_choice_is_the_argmax_over_the_goals_worth_a_look():
+@pytest.mark.parametrize("gain_weight", [0.0, 2.0])
+def test_the_lazy_choice_is_the_argmax_over_the_goals_worth_a_look(gain_weight: float):
     view, decision, fused = _real_decision()
-    config = PredictiveConfig(policy_max_detour_m=math.inf)
+    config = PredictiveConfig(policy_max_detour_m=math.inf, policy_gain_weight=gain_weight)
     mask = worth_a_look(view, decision, fused, config)
+    bonus = np.zeros(G * G)
+    for cell in np.flatnonzero(decision.options.mask):
+        bonus[cell] = gain_weight * math.log1p(len(_view_cells(view, decision, fused, int(cell))))
     rng = np.random.default_rng(0)
     for _ in range(20):
         scores = np.where(decision.options.mask, rng.normal(size=(G, G)), -np.inf)
-        expected = int(np.argmax(np.where(mask, scores, -np.inf)))
+        expected = int(np.argmax(np.where(mask, scores + bonus.reshape(G, G), -np.inf)))
         assert best_cell_worth_a_look(view, decision, scores, fused, config) == expected
 
 
@@ -151,13 +155,16 @@ def test_the_best_ranked_goal_is_kept_when_the_one_worth_a_look_is_a_long_detour
     scores[valid] = 0.0
     scores[near], scores[far] = 2.0, 1.0  # the policy ranks the near goal first; only the far one is worth a look
     scores = scores.reshape(G, G)
-    rule = dict(min_gain_cells=gains[far], policy_detour_min_cells=gains[near])
+    rule = dict(min_gain_cells=gains[far], policy_detour_min_cells=gains[near], policy_gain_weight=0.0)
     capped = PredictiveConfig(**rule, policy_max_detour_m=0.5 * detour_m)
     assert best_cell_worth_a_look(view, decision, scores, fused, capped) == near
     uncapped = PredictiveConfig(**rule, policy_max_detour_m=detour_m)  # a detour up to the cap is flown
     assert best_cell_worth_a_look(view, decision, scores, fused, uncapped) == far
     blind = PredictiveConfig(
-        min_gain_cells=gains[far], policy_max_detour_m=0.5 * detour_m, policy_detour_min_cells=gains[near] + 1
+        min_gain_cells=gains[far],
+        policy_max_detour_m=0.5 * detour_m,
+        policy_detour_min_cells=gains[near] + 1,
+        policy_gain_weight=0.0,
     )  # the near goal shows too little even for the cap
     assert best_cell_worth_a_look(view, decision, scores, fused, blind) == far
 

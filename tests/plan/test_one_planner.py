@@ -11,7 +11,7 @@ import pytest
 from edge_explorer.bench import explore
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS as G
 from edge_explorer.plan.goal_grid import GoalOptions
-from edge_explorer.plan.goal_policy import GoalPolicyPlanner, weighted_scores
+from edge_explorer.plan.goal_policy import GoalPolicyPlanner, weighted_scores, with_view_gain
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.runtime.daemon import Daemon, DaemonConfig
 from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
@@ -42,7 +42,9 @@ def test_the_goal_env_and_the_benchmark_fly_the_same_policy_the_same_way(rooms):
     decisions, done = 0, False
     while not done:
         options = GoalOptions(np.where(env.action_masks(), 0, -1).reshape(G, G), env.action_costs_m().reshape(G, G))
-        scores = weighted_scores(policy(observation), options, PredictiveConfig().policy_cost_weight_per_m)
+        config = PredictiveConfig()
+        scores = weighted_scores(policy(observation), options, config.policy_cost_weight_per_m)
+        scores = with_view_gain(scores, env.action_view_cells().reshape(G, G), config.policy_gain_weight)
         observation, _, terminated, truncated, info = env.step(int(np.argmax(scores)))
         decisions, done = decisions + 1, terminated or truncated
     assert record["ending"] == "goal" and terminated and decisions > 1

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from edge_explorer.plan.predictive import PredictiveConfig
 from edge_explorer.sim.env import EnvConfig
 from edge_explorer.sim.goal_env import NUM_GOALS, GoalEnv
 from edge_explorer.world.raster import rasterize
@@ -29,6 +30,9 @@ def test_the_expert_s_goals_explore_the_rooms_with_the_paper_s_reward(rooms):
     while not (terminated or truncated):
         mask = env.action_masks()
         assert mask.any() and mask.shape == (NUM_GOALS,)
+        cells = env.action_view_cells()  # what each goal's view shows: the mask keeps the ones worth a look
+        worth = cells >= PredictiveConfig().min_gain_cells
+        assert (mask == worth).all() if worth.any() else (cells[~mask] == 0).all()
         cell = env.expert_action()
         assert cell is not None  # the expert's goal is reachable; it may not be worth a look (its near fallback)
         path_before = info["path_length_m"]
@@ -40,7 +44,7 @@ def test_the_expert_s_goals_explore_the_rooms_with_the_paper_s_reward(rooms):
         total += reward
         decisions += 1
     assert terminated and info["coverage"] >= 0.95 and decisions >= 2 and info["collisions"] == 0
-    assert not env.action_masks().any()
+    assert not env.action_masks().any() and not env.action_view_cells().any()
 
 
 def test_a_masked_goal_is_replaced_by_the_nearest_valid_one(rooms):
