@@ -234,6 +234,7 @@ def ship_goal_policy(
             "shape": [1, GOAL_GRID_CELLS, GOAL_GRID_CELLS],
             "meaning": "goal-cell logits on the heading-up 0.8 m goal grid (plan.goal_grid); the goal is the valid "
             "cell of the highest logit − decision.policy_cost_weight_per_m × path cost in m "
+            "+ decision.policy_gain_weight × ln(1 + cells unknown in the fused map in view from it) "
             "among the goals worth a look: ≥ decision.min_gain_cells cells unknown in the fused map in view, "
             "unless that is a detour of more than decision.policy_max_detour_m from the best-ranked cell "
             "(plan.goal_policy.best_cell_worth_a_look), "

@@ -10,13 +10,14 @@ the start, when the target is seen or predicted, when a goal failed — :func:`g
   reachable planning node lies within ``goal_radius_m`` of a fused frontier cell.
 
 A :data:`GoalPolicy` maps the observation to a 59 × 59 array of scores; :class:`GoalPolicyPlanner` ranks the valid
-cells by score − ``policy_cost_weight_per_m`` × path cost (:func:`weighted_scores`; 0.3 per m since session 34) and
-takes the best one that is worth a look — a view from its goal node shows at least the expert's ``min_gain_cells`` cells
-unknown in the fused map (:func:`worth_a_look`; the issue's "goals that reveal nothing are masked"), the best valid
-cell when none is, and the best-ranked cell itself when the one worth a look is a detour of more than
-``policy_max_detour_m`` (session 35) — and flies to that cell's goal node along the planning graph (observed free
-space at the robot's clearance: a collision-free path by construction), facing the frontier cells near it. When no
-cell is valid the predictive expert's fallbacks apply (observed frontier, then done). The expert
+cells by score − ``policy_cost_weight_per_m`` × path cost (:func:`weighted_scores`; 0.3 per m since session 34)
++ ``policy_gain_weight`` × ln(1 + the unknown cells a view from the cell shows) (:func:`with_view_gain`; 2 since
+session 36) and takes the best one that is worth a look — a view from its goal node shows at least the expert's
+``min_gain_cells`` cells unknown in the fused map (:func:`worth_a_look`; the issue's "goals that reveal nothing are
+masked"), the best valid cell when none is, and the best-ranked cell itself when the one worth a look is a detour
+of more than ``policy_max_detour_m`` (session 35) — and flies to that cell's goal node along the planning graph
+(observed free space at the robot's clearance: a collision-free path by construction), facing the frontier cells near
+it. When no cell is valid the predictive expert's fallbacks apply (observed frontier, then done). The expert
 (:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
 same decisions (:func:`expert_label`) for behaviour cloning.
 """

@@ -10,8 +10,9 @@ The exported model (ONNX or TFLite, loaded and checked against its card by
   converts it to the input's type (float32 in ONNX, quantized int8 in TFLite) — any other preprocessing belongs
   inside the exported graph, so the daemon and the simulator cannot disagree about it;
 * **output**: one output of 59 × 59 values, the goal-cell logits of :mod:`edge_explorer.plan.goal_grid`; the goal is
-  their argmax over the valid cells (:func:`~edge_explorer.plan.goal_policy.weighted_scores`), among the goals worth
-  a look (:func:`~edge_explorer.plan.goal_policy.best_cell_worth_a_look`).
+  their argmax over the valid cells (:func:`~edge_explorer.plan.goal_policy.weighted_scores`, with the view-gain term
+  :func:`~edge_explorer.plan.goal_policy.with_view_gain`), among the goals worth a look
+  (:func:`~edge_explorer.plan.goal_policy.best_cell_worth_a_look`).
 
 :meth:`PolicyRuntime.scores` is a :data:`~edge_explorer.plan.goal_policy.GoalPolicy`, so the exported policy flies
 through :class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner` exactly as the torch weights do in training.
