@@ -143,16 +143,21 @@ def open_unknown(observed_low: np.ndarray, fused_low: np.ndarray) -> np.ndarray:
     return np.isin(labels, open_labels[open_labels > 0])
 
 
+def view_window(viewpoint_xy_m: np.ndarray, grid: GridSpec, range_m: float) -> tuple[int, int, int, int]:
+    """(row0, row1, col0, col1): the square of ``grid`` cells (row0:row1, col0:col1) that :func:`visible_unknown`
+    scans from the viewpoint, clipped to the grid; its unknown cells bound what a view from there can show."""
+    row, col = (int(v) for v in grid.cell_of(*viewpoint_xy_m))
+    r = int(math.ceil(range_m / grid.resolution_m))
+    return max(row - r, 0), min(row + r + 1, grid.shape[0]), max(col - r, 0), min(col + r + 1, grid.shape[1])
+
+
 def visible_unknown(
     viewpoint_xy_m: np.ndarray, unknown: np.ndarray, blocking: np.ndarray, grid: GridSpec, range_m: float
 ) -> np.ndarray:
     """(K, 2) centres of the ``unknown`` cells (bool on ``grid``) within ``range_m`` of the viewpoint whose line of
     sight, sampled every half cell, crosses no ``blocking`` cell before it (all around the viewpoint)."""
-    row, col = (int(v) for v in grid.cell_of(*viewpoint_xy_m))
-    r = int(math.ceil(range_m / grid.resolution_m))
-    r0, c0 = max(row - r, 0), max(col - r, 0)
-    window = unknown[r0 : row + r + 1, c0 : col + r + 1]
-    rows, cols = np.nonzero(window)
+    r0, r1, c0, c1 = view_window(viewpoint_xy_m, grid, range_m)
+    rows, cols = np.nonzero(unknown[r0:r1, c0:c1])
     if len(rows) == 0:
         return np.zeros((0, 2))
     x, y = grid.center_of(rows + r0, cols + c0)
