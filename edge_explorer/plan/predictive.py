@@ -18,7 +18,8 @@ cluster the goal is the planning-graph node within ``goal_radius_m`` of it that 
 Dijkstra search from the vehicle serves every cluster). Its *gain* is the number of 0.20 m cells that are UNKNOWN in
 the fused map — unobserved and not confidently predicted — within sensor range of the goal with a line of sight
 that crosses no fused OCCUPIED cell (all around: the vehicle turns at the goal to face them). The cluster with the
-best ``gain^γ / (path_m + cost_offset_m)`` is chosen (γ = ``gain_exponent``); clusters whose gain is below
+best ``ln(1 + gain) − λ · path_m`` is chosen (λ = ``cost_decay_per_m``; the next-best-view utility
+gain · e^(−λ · path)); clusters whose gain is below
 ``min_gain_cells`` are flown only when nothing better is left or when one lies on the way — within
 ``near_fallback_ratio`` of the chosen cluster's path (:func:`choose_cluster`: without it the expert left a small
 cluster beside it for a rich one 15 m away and came back for it at the end) — and when no fused frontier is reachable
@@ -67,10 +68,16 @@ class PredictiveConfig:
     planner: PlannerConfig = PlannerConfig()
     sensor: SensorConfig = SensorConfig()
     cluster_max_radius_m: float = 1.0
-    # score gain^γ / (path + offset). Tuned on 16 val plans (docs/bench/README.md): γ = 0 — the nearest fused
-    # frontier whose view is worth ``min_gain_cells`` — beat γ = 0.25, 0.5 and 1 (gain per metre) there.
+    # with cost_decay_per_m = 0: score gain^γ / (path + offset). Tuned on 16 val plans (docs/bench/README.md): γ = 0
+    # — the nearest fused frontier whose view is worth ``min_gain_cells`` — beat γ = 0.25, 0.5 and 1 there.
     cost_offset_m: float = 4.0  # keeps a goal under the vehicle from scoring infinitely when γ > 0
     gain_exponent: float = 0.0  # γ: 0 flies to the nearest fused frontier worth a look, 1 to the most gain per metre
+    # λ > 0 replaces that score with ln(1 + gain) − λ × path, i.e. gain × e^(−λ·path): the next-best-view utility of
+    # González-Baños & Latombe and Bircher et al.'s NBVP, the form the learned planner's ranking took in session 36.
+    # Val plans, 1 run, seed 0, against λ = 0 (session 37, docs/policy/goal_policy.md): 0.2 +2.08, 0.5 +0.47,
+    # 0.75 −1.11, 1.0 −1.60 ± 0.71, 1.5 −0.09, 2.0 −0.39 m on 40-135; 1.0 −1.20 ± 0.68 / −1.29 ± 0.69 m on
+    # 136-231 / 232-327.
+    cost_decay_per_m: float = 1.0
     min_gain_cells: int = 30  # clusters revealing fewer unknown cells (1.2 m²) wait until nothing better is left
     done_fraction: float = 0.8  # a target cluster is done when this share of its cells is no fused frontier
     # a corridor the prediction only began to fill stays a target (fused_frontier_mask). On val plans 40-135 (1 run,
@@ -111,11 +118,12 @@ class PredictiveConfig:
             or self.policy_max_detour_m < 0
             or self.policy_detour_min_cells < 0
             or self.policy_gain_weight < 0
+            or self.cost_decay_per_m < 0
         ):
             raise ValueError(
                 "cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent, "
                 "near_fallback_ratio, policy_cost_weight_per_m, policy_max_detour_m, policy_detour_min_cells, "
-                "policy_gain_weight ≥ 0"
+                "policy_gain_weight, cost_decay_per_m ≥ 0"
             )
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")
@@ -178,7 +186,8 @@ def visible_unknown(
 def choose_cluster(paths_m: np.ndarray, gains_cells: np.ndarray, config: PredictiveConfig) -> int | None:
     """Index of the cluster to fly to, given each one's path length (m) and gain (cells), or ``None`` if none.
 
-    The best ``gain^γ / (path + cost_offset_m)`` among the clusters worth ``min_gain_cells``; when none is, the
+    The best ``ln(1 + gain) − cost_decay_per_m × path`` (with ``cost_decay_per_m`` 0: ``gain^γ / (path +
+    cost_offset_m)``) among the clusters worth ``min_gain_cells``; when none is, the
     nearest of the rest. A low-gain cluster is flown first when it lies within ``near_fallback_ratio`` of the best
     one's path: it is on the way, and leaving it means coming back for it at the end of the flight."""
     if len(paths_m) == 0:
@@ -188,7 +197,11 @@ def choose_cluster(paths_m: np.ndarray, gains_cells: np.ndarray, config: Predict
     nearest_rest = int(rest[np.argmin(paths_m[rest])]) if len(rest) else None
     if not worth.any():
         return nearest_rest
-    scores = np.where(worth, gains_cells.astype(float) ** config.gain_exponent / (paths_m + config.cost_offset_m), -1.0)
+    if config.cost_decay_per_m > 0:
+        utility = np.log1p(gains_cells.astype(float)) - config.cost_decay_per_m * paths_m
+    else:
+        utility = gains_cells.astype(float) ** config.gain_exponent / (paths_m + config.cost_offset_m)
+    scores = np.where(worth, utility, -np.inf)
     best = int(np.argmax(scores))
     if nearest_rest is not None and paths_m[nearest_rest] < config.near_fallback_ratio * paths_m[best]:
         return nearest_rest

@@ -49,13 +49,25 @@ def test_open_prediction_keeps_a_corridor_mouth_the_prediction_only_began_to_fil
 def test_a_low_gain_cluster_on_the_way_is_flown_before_a_far_rich_one():
     paths_m = np.array([15.0, 3.0, 20.0])
     gains = np.array([200, 10, 400])  # the near cluster shows too little to be a target on its own
-    strict = PredictiveConfig(near_fallback_ratio=0.0)
+    strict = PredictiveConfig(cost_decay_per_m=0.0, near_fallback_ratio=0.0)
     assert choose_cluster(paths_m, gains, strict) == 0  # γ = 0: the nearest cluster worth a look
     assert choose_cluster(paths_m, gains, PredictiveConfig(near_fallback_ratio=0.3)) == 1  # 3 m < 0.3 × 15 m
     assert choose_cluster(np.array([15.0, 6.0]), np.array([200, 10]), PredictiveConfig(near_fallback_ratio=0.3)) == 0
-    assert choose_cluster(paths_m, gains, PredictiveConfig(gain_exponent=1.0, near_fallback_ratio=0.0)) == 2
+    per_metre = PredictiveConfig(cost_decay_per_m=0.0, gain_exponent=1.0, near_fallback_ratio=0.0)
+    assert choose_cluster(paths_m, gains, per_metre) == 2
     assert choose_cluster(np.array([9.0, 4.0]), np.array([5, 7]), strict) == 1  # none worth it: the nearest
     assert choose_cluster(np.zeros(0), np.zeros(0, dtype=int), strict) is None
+
+
+def test_the_default_score_trades_a_factor_e_of_gain_per_metre_of_path():
+    config = PredictiveConfig(cost_decay_per_m=1.0, near_fallback_ratio=0.0)  # score ln(1 + gain) − 1/m × path
+    gains = np.array([40, 400])  # the far view shows ten times more: worth ln(401 / 41) ≈ 2.3 m of extra path
+    assert choose_cluster(np.array([3.0, 5.0]), gains, config) == 1
+    assert choose_cluster(np.array([3.0, 5.5]), gains, config) == 0
+    assert choose_cluster(np.array([3.0, 5.5]), gains, PredictiveConfig(cost_decay_per_m=0.2)) == 1
+    assert choose_cluster(np.array([3.0, 5.5]), np.array([20, 400]), config) == 1  # 20 cells are not worth a look
+    with pytest.raises(ValueError, match="cost_decay_per_m"):
+        PredictiveConfig(cost_decay_per_m=-1.0)
 
 
 def test_gain_counts_unknown_cells_in_range_and_in_sight():
