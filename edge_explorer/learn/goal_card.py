@@ -122,8 +122,8 @@ def stage_record(run_dir: Path) -> dict[str, Any]:
 
 def decision_settings(config: PredictiveConfig | None = None) -> dict[str, Any]:
     """The planner settings that turn the policy's scores into a goal (the card's ``decision``; ``config`` defaults to
-    today's :class:`PredictiveConfig`): the path-cost weight, the worth-a-look threshold, the detour cap and the
-    view-gain weight."""
+    today's :class:`PredictiveConfig`): the path-cost weight, the worth-a-look threshold, the detour cap, the
+    view-gain weight, and the expert's path decay for the fallback taken when no goal on the policy's grid is valid."""
     config = config or PredictiveConfig()
     return {
         "policy_cost_weight_per_m": config.policy_cost_weight_per_m,
@@ -131,6 +131,7 @@ def decision_settings(config: PredictiveConfig | None = None) -> dict[str, Any]:
         "policy_max_detour_m": config.policy_max_detour_m,
         "policy_detour_min_cells": config.policy_detour_min_cells,
         "policy_gain_weight": config.policy_gain_weight,
+        "fallback_cost_decay_per_m": config.cost_decay_per_m,
     }
 
 
