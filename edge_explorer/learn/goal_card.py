@@ -13,11 +13,8 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import platform
 import shutil
-import statistics
-import time
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -28,6 +25,7 @@ import torch
 from edge_explorer.backends.card import sha256_of
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.goal_net import GoalNet, load_goal_net
+from edge_explorer.learn.hardware import torch_latency_ms
 from edge_explorer.learn.predictor_card import CARD_FORMAT
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
@@ -65,24 +63,7 @@ def count_macs(net: GoalNet) -> int:
 
 def latency_ms(net: GoalNet, repeats: int = 30) -> dict[str, Any]:
     """Median / p90 wall time of one decision's network (batch 1, fp32 torch, one thread) on this host."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    times = []
-    with torch.no_grad():
-        for k in range(repeats + 5):
-            t0 = time.perf_counter()
-            net(*_example())
-            if k >= 5:
-                times.append(1e3 * (time.perf_counter() - t0))
-    torch.set_num_threads(previous)
-    times.sort()
-    return {
-        "median_ms": statistics.median(times),
-        "p90_ms": times[int(0.9 * (len(times) - 1))],
-        "threads": 1,
-        "repeats": repeats,
-        "load_average_1min": os.getloadavg()[0],
-    }
+    return torch_latency_ms(lambda: net(*_example()), repeats)
 
 
 def _rows(path: Path) -> list[dict[str, float | str]]:

@@ -8,17 +8,15 @@ single-thread fp32 latency measured on this host, and the SHA-256 of the weights
 from __future__ import annotations
 
 import json
-import os
 import platform
 import shutil
-import statistics
-import time
 from pathlib import Path
 
 import torch
 
 from edge_explorer.backends.card import sha256_of
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.learn.hardware import torch_latency_ms
 from edge_explorer.learn.unet import UNet, count_macs_params, load_unet
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
 from edge_explorer.predict import encoding
@@ -27,27 +25,10 @@ CARD_FORMAT = "edge-explorer/model-card"
 WEIGHTS_NAME = "predictor.safetensors"
 
 
-def torch_latency_ms(model: UNet, repeats: int = 30, threads: int = 1) -> dict:
+def predictor_latency_ms(model: UNet, repeats: int = 30, threads: int = 1) -> dict:
     """Median / p90 wall time of one 256×256 prediction (batch 1, fp32, ``threads`` torch threads)."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)
     x = torch.zeros(1, model.config.in_channels, PREDICTOR_WINDOW_CELLS, PREDICTOR_WINDOW_CELLS)
-    times = []
-    with torch.no_grad():
-        for k in range(repeats + 5):
-            t0 = time.perf_counter()
-            model(x)
-            if k >= 5:  # warm-up runs first
-                times.append(1e3 * (time.perf_counter() - t0))
-    torch.set_num_threads(previous)
-    times.sort()
-    return {
-        "median_ms": statistics.median(times),
-        "p90_ms": times[int(0.9 * (len(times) - 1))],
-        "threads": threads,
-        "repeats": repeats,
-        "load_average_1min": os.getloadavg()[0],
-    }
+    return torch_latency_ms(lambda: model(x), repeats, threads)
 
 
 def training_stretches(run_dir: Path) -> list[dict]:
@@ -137,7 +118,7 @@ def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], c
             "hardware": sorted({x["hardware"] for x in stretches}),
         },
         "metrics": metrics,
-        "latency_torch_fp32_this_host": torch_latency_ms(model),
+        "latency_torch_fp32_this_host": predictor_latency_ms(model),
         "host": {"machine": platform.machine(), "python": platform.python_version(), "torch": torch.__version__},
     }
     (out_dir / "card.json").write_text(json.dumps(card, indent=1) + "\n")
