@@ -9,7 +9,6 @@ coefficient of variation gives the expected count and the chance that all of a g
 
 import argparse
 import json
-import math
 from collections import defaultdict
 from statistics import NormalDist
 
@@ -38,11 +37,15 @@ def main() -> None:
         all_pass *= p**args.flights
         expected_total += p * args.flights
         loo_total, runs_total = loo_total + within, runs_total + len(x)
-        print(f"{plan}: {len(x)} runs, mean {x.mean():.1f} m, CV {cv:.3f}; leave-one-out within ±{args.band:.0%}: "
-              f"{within}/{len(x)}; normal model: P(one flight within) {p:.2f}")
+        print(
+            f"{plan}: {len(x)} runs, mean {x.mean():.1f} m, CV {cv:.3f}; leave-one-out within ±{args.band:.0%}: "
+            f"{within}/{len(x)}; normal model: P(one flight within) {p:.2f}"
+        )
     n = args.flights * len(paths)
-    print(f"all: leave-one-out {loo_total}/{runs_total}; normal model, {n} unbiased flights: expected "
-          f"{expected_total:.1f}/{n} within, P(all {n} within) {all_pass:.3f} (1 in {math.ceil(1 / all_pass)})")
+    print(
+        f"all: leave-one-out {loo_total}/{runs_total}; normal model, {n} unbiased flights: expected "
+        f"{expected_total:.1f}/{n} within, P(all {n} within) {all_pass:.3g}"
+    )
 
 
 if __name__ == "__main__":
