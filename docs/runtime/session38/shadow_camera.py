@@ -19,15 +19,45 @@ from tqdm import tqdm
 from edge_explorer.bench import explore as bench
 from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
-from edge_explorer.plan.goal_policy import GoalPolicyPlanner
-from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.runtime.daemon.config import band_z_range_m
 from edge_explorer.runtime.daemon.report import CoverageTruth
 from edge_explorer.sim.camera import CameraPose, DepthCamera
-from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.sim.env import ExplorationEnv
 from edge_explorer.world.catalog import load_buildings
 
 PATHS_M = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
+
+
+class ShadowCameraEnv(ExplorationEnv):
+    """`ExplorationEnv` (planar sensor, unchanged) that also fuses camera frames into a shadow of the daemon's maps
+    and keeps one row per step: (path m, planar observed coverage, camera observed coverage)."""
+
+    frames_per_step = 1
+
+    def _sense(self) -> None:
+        super()._sense()
+        truth = self._truth
+        assert truth is not None
+        if self._steps == 0:  # a new episode
+            self._band, self._camera = HeightBand(), DepthCamera(truth.raster)
+            self._coverage = CoverageTruth(truth.raster)
+            region = VoxelRegion.covering(truth.raster.grid, *band_z_range_m(self._band))
+            self._shadow, self._before, self._frames, self.rows = VoxelMaps(region, FusionConfig()), None, 0, []
+        before = self._before or (self._x, self._y, self._yaw)
+        turn = (self._yaw - before[2] + np.pi) % (2 * np.pi) - np.pi
+        for k in range(1, self.frames_per_step + 1):  # the last frame at the step's end pose, the others on the way
+            f = k / self.frames_per_step
+            x_m, y_m = before[0] + f * (self._x - before[0]), before[1] + f * (self._y - before[1])
+            pose = CameraPose(x_m, y_m, self._band.flight_z_m, before[2] + f * turn)
+            self._frames += 1
+            depth = self._camera.render(pose)
+            self._shadow.fuse(
+                depth, self._camera.config.intrinsics, pose.position_m, pose.rotation_map_from_optical(), self._frames
+            )
+        self._before = (self._x, self._y, self._yaw)
+        low, low_grid = project(self._shadow.low, self._band)
+        planar = self._coverage.metrics(self._maps.low, self._maps.low_grid, None).coverage
+        self.rows.append((self._path_length_m, planar, self._coverage.metrics(low, low_grid, None).coverage))
 
 
 def fly(plan: str, runs: int, frames_per_step: int) -> list[np.ndarray]:
@@ -35,40 +65,17 @@ def fly(plan: str, runs: int, frames_per_step: int) -> list[np.ndarray]:
     raster = load_buildings(plan)[0]
     specs = bench.plan_specs([raster], ["drl+pred"], runs, 0, predictor="models/predictor", policy="models/policy")
     predictor, policy = bench.load_predictor("models/predictor"), bench.load_policy("models/policy")
-    band, camera, truth = HeightBand(), DepthCamera(raster), CoverageTruth(raster)
-    region = VoxelRegion.covering(raster.grid, *band_z_range_m(band))
-    out = []
+    envs: list[ShadowCameraEnv] = []
+
+    def make_env(*args, **kwargs) -> ShadowCameraEnv:
+        envs.append(ShadowCameraEnv(*args, **kwargs))
+        envs[-1].frames_per_step = frames_per_step
+        return envs[-1]
+
+    bench.ExplorationEnv = make_env  # run_episode builds its env by this name
     for spec in tqdm(specs, desc=f"{plan} runs"):
-        config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps, thresholds=thresholds_of(predictor))
-        env = ExplorationEnv([raster], config, predictor=predictor)
-        planner = GoalPolicyPlanner(policy, table=env.table)
-        planner.reset()
-        _, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
-        shadow = VoxelMaps(region, FusionConfig())
-        rows, previous, before, frames = [], 0, env.pose, 0
-        while len(rows) <= spec.max_steps:
-            after = env.pose
-            turn = (after[2] - before[2] + np.pi) % (2 * np.pi) - np.pi
-            for k in range(1, frames_per_step + 1):  # the last frame at the step's end pose, the others on the way
-                f = k / frames_per_step
-                x_m, y_m = before[0] + f * (after[0] - before[0]), before[1] + f * (after[1] - before[1])
-                pose = CameraPose(x_m, y_m, band.flight_z_m, before[2] + f * turn)
-                depth = camera.render(pose)
-                frames += 1
-                shadow.fuse(depth, camera.config.intrinsics, pose.position_m, pose.rotation_map_from_optical(), frames)
-            before = after
-            low, low_grid = project(shadow.low, band)
-            planar = truth.metrics(env.maps.low, env.maps.low_grid, None).coverage
-            rows.append((info["path_length_m"], planar, truth.metrics(low, low_grid, None).coverage))
-            if info["coverage"] >= spec.coverage_goal and info["correct_coverage"] >= spec.coverage_goal:
-                break
-            action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
-            if action is None:
-                break
-            _, _, _, _, info = env.step(action)
-            previous = 0 if info["collided"] else action
-        out.append(np.asarray(rows))
-    return out
+        bench.run_episode(raster, spec, predictor, policy)
+    return [np.asarray(env.rows) for env in envs]
 
 
 def main() -> None:
