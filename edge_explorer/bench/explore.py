@@ -3,7 +3,7 @@
 Methods are planner names (:data:`~edge_explorer.plan.baselines.PLANNERS`: ``frontier``, ``fuel``), optionally
 with ``+pred``: the paper's "+ Predictor" variants, where the planner still decides on the *observed* map but every
 step the observed map goes through the predictor and coverage is counted on the thresholded prediction
-(DESIGN.md §5, §7; the simulator does this when it is given a predictor).
+(docs/design.md §5, §7; the simulator does this when it is given a predictor).
 
 Runs: every run of a building starts from the same pose, drawn from the configuration space by the simulator's own
 sampler with a seed derived from the benchmark seed and the building's name (:func:`start_pose`, so another method
@@ -41,7 +41,7 @@ from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster, clearance_m
 
 PRED_SUFFIX = "+pred"
-DRL = "drl"  # the learned goal policy (DESIGN.md §6), flown through the goal-planner loop
+DRL = "drl"  # the learned goal policy (docs/design.md §6), flown through the goal-planner loop
 RECORD_FORMAT = "edge-explorer/explore-run"
 START_CLEARANCE_M = 0.5  # from the start pose to the nearest wall
 _START_ATTEMPTS = 100
@@ -215,7 +215,8 @@ def run_episode(
     A planner method decides from the observed (and fused) map; the ``drl`` methods fly the learned goal ``policy``
     through the same planner loop (:class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`)."""
     method = spec.method.removesuffix(PRED_SUFFIX)
-    # the run, not the env, decides when to stop; the predictor's card may carry calibrated thresholds (DESIGN.md §5)
+    # the run, not the env, decides when to stop; the predictor's card may carry calibrated thresholds
+    # (docs/design.md §5)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
     if method == DRL:

@@ -4,7 +4,7 @@
   held-back observation both probability maps go back onto the plan's 0.20 m map
   (:func:`~edge_explorer.mapping.ego.unshift`), through dynamic thresholding
   (:func:`~edge_explorer.predict.thresholding.thresholded_map`, default t_f_max / t_o, the observation's own
-  observed area), and are scored (DESIGN.md §7 F1 against the plan's truth).
+  observed area), and are scored (docs/design.md §7 F1 against the plan's truth).
   ``f1_drop`` = mean F1 (fp32) − mean F1 (candidate); ``cell_agreement`` = the share of the building's
   *unobserved interior* cells — the cells the prediction decides and the §7 metrics count (N_M) — that get the same
   code from both. Observed cells always agree, so counting them would only dilute the figure; cells outside the

@@ -219,7 +219,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "predictor",
         help="F1 / coverage / correct coverage of observed + thresholded prediction vs true coverage",
         description="Explore each plan with a fixed-seed explorer and score the map with the prediction at every "
-        "step (DESIGN.md §5, §7).",
+        "step (docs/design.md §5, §7).",
     )
     evp.add_argument(
         "--model", type=Path, required=True, help="weights (.safetensors) or an exported model folder (card.json)"

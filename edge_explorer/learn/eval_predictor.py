@@ -3,11 +3,11 @@
 Each plan is explored once by a fixed-seed explorer of :mod:`edge_explorer.learn.predictor_flights` (the prediction
 does not steer the flight). At every scan that enters a new 0.5 % bin of true coverage (observed cells only), the
 predictor reads the north-up ego window, the probabilities go back onto the map (:func:`~edge_explorer.mapping.ego.
-unshift`), dynamic thresholding (DESIGN.md §5) fills the unobserved cells, and the map is scored (§7): F1, coverage
+unshift`), dynamic thresholding (docs/design.md §5) fills the unobserved cells, and the map is scored (§7): F1, coverage
 and correct coverage of observed + thresholded prediction, beside the F1 of the observed map alone and the F1 a
 perfect prediction would reach (``f1_ceiling``: every unobserved cell right). The ceiling is below 1 because observed
-cells always win and some are wrong — sensor noise marks free cells beside walls occupied (DESIGN.md §6). Every reported
-level (50, 80, 95, 98 %) is a bin edge, so "F1 at 80 %" is exactly the first scan whose true coverage reaches 80 %.
+cells always win and some are wrong — sensor noise marks free cells beside walls occupied (docs/design.md §6).
+Every reported level (50, 80, 95, 98 %) is a bin edge, so "F1 at 80 %" is exactly the first scan whose true coverage reaches 80 %.
 
 Aggregation: per coverage level, the mean over the plans whose flight reached it (``n`` says how many did: the
 inside of tall furniture is never observable, so not every plan reaches 98 % true coverage).
@@ -57,7 +57,7 @@ REPORT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95, 0.98)
 BIN_WIDTH = 0.005  # a scan is scored when its true coverage enters a new bin of this width
 CURVE_LEVELS = np.round(np.arange(0.01, 1.0001, 0.01), 2)
 SERIES = ("f1", "coverage", "correct_coverage", "f1_observed", "f1_ceiling")
-DEFAULT_THRESHOLDS = ThresholdConfig()  # t_f_max 0.04, t_o 0.94 (DESIGN.md §5)
+DEFAULT_THRESHOLDS = ThresholdConfig()  # t_f_max 0.04, t_o 0.94 (docs/design.md §5)
 # Fly on until the coverage has not grown for 600 scans (scans are cheap; the predictor runs once per 0.5 % bin):
 # with the training data's patience (150) few flights reach 98 % true coverage.
 EVAL_LIMITS = FlightLimits(max_steps=4000, stall_steps=600)
@@ -279,7 +279,7 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     weights = args.model / CARD_FILE if args.model.is_dir() else args.model
     sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=args.occupied_noise)
     reference = str(args.model) if args.ray else predictor  # Ray workers load their own
-    thresholds = thresholds_of(predictor)  # an exported model's card may carry calibrated ones (DESIGN.md §5)
+    thresholds = thresholds_of(predictor)  # an exported model's card may carry calibrated ones (docs/design.md §5)
     if args.thresholds is not None:
         thresholds = dataclasses.replace(thresholds, t_f_max=args.thresholds[0], t_o=args.thresholds[1])
     report = evaluate(

@@ -1,6 +1,6 @@
 """The goal policy network: a fully convolutional spatial action map over the 59 × 59 goal cells, and a value head.
 
-Input: the paper's observation (DESIGN.md §5) — the heading-up 237 × 237 windows ``high`` (0.05 m, 11.85 m
+Input: the paper's observation (docs/design.md §5) — the heading-up 237 × 237 windows ``high`` (0.05 m, 11.85 m
 across) and ``thres`` (0.20 m, 47.4 m) as int8 cell codes, and the one-hot ``last_action``.
 
 * ``high`` is max-pooled 4 × 4 to 0.20 m *as codes* (the pooled cell takes the highest code: NON_FLIGHT over

@@ -8,7 +8,7 @@ Per plan, :func:`collect_plan_samples` flies one explorer drawn from
 [``min_coverage``, 1] and records the observed low-res map (0.20 m, in the plan's map frame) the first time each level
 is reached, with the robot's low-res cell and the observed area; the truth is stored once per plan.
 ``SampleConfig.noise_free_fraction`` of the flights scan with a noise-free sensor, the rest with the training
-noise (DESIGN.md §6), so the predictor sees both kinds of maps.
+noise (docs/design.md §6), so the predictor sees both kinds of maps.
 
 :func:`generate_predictor_data` writes the shards in parallel, resumably (a ``.json`` marker is written last), from
 the plan shards of :mod:`edge_explorer.world.dataset`: ``train`` from the train split, ``val`` from val.

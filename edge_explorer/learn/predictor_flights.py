@@ -1,6 +1,6 @@
 """Flights that record partial maps for the map predictor: explorers flying the true floor plans with the sensor.
 
-:func:`fly` explores one plan with the planar sensor (DESIGN.md §6, noise on): an :class:`Explorer` proposes sensor
+:func:`fly` explores one plan with the planar sensor (docs/design.md §6, noise on): an :class:`Explorer` proposes sensor
 poses, each pose is scanned into the two-level :class:`~edge_explorer.mapping.observed.ObservedMaps`, and every step
 yields the observed-only coverage. The training data (:mod:`edge_explorer.learn.predictor_data`) is recorded from these
 flights, and the evaluation (:mod:`edge_explorer.learn.eval_predictor`) flies the same way.
@@ -239,7 +239,7 @@ class FlightStep:
     step: int  # 0 = the scan at the start pose
     pose: Pose
     maps: ObservedMaps
-    coverage: float  # observed-only coverage of the interior (DESIGN.md §7)
+    coverage: float  # observed-only coverage of the interior (docs/design.md §7)
 
 
 @dataclass(frozen=True)

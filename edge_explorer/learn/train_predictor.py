@@ -12,7 +12,7 @@ capacity) — summed and divided by the batch's total weight. ``init_weights`` s
 (fine-tuning); ``quantization_aware`` rounds every ReLU tensor to int8 levels in the loop
 (:mod:`edge_explorer.learn.fake_quant`), for weights that survive the int8 export.
 
-Validation (every ``val_every_steps``): weighted BCE and the paper's F1 (DESIGN.md §7) of the observed map plus the
+Validation (every ``val_every_steps``): weighted BCE and the paper's F1 (docs/design.md §7) of the observed map plus the
 dynamically thresholded prediction (§5), over ``val_samples`` fixed samples of the val split, inside the ego window
 (which holds the whole building). The model with the best :func:`selection_score` — the mean val F1 at 50–80 %,
 80–95 % and ≥ 95 % coverage, so a model must be useful early and not only at the end, and the many low-coverage

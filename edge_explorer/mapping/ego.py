@@ -2,7 +2,7 @@
 
 The simulator, the trainer, the benchmark and the on-device daemon all build the predictor input and the policy
 observation with these functions, so the networks see in flight exactly what they saw in training
-(DESIGN.md §2, §5). Everything here is a pure function on numpy arrays of int8 cell codes
+(docs/design.md §2, §5). Everything here is a pure function on numpy arrays of int8 cell codes
 (:data:`~edge_explorer.world.grid.FREE`, ``UNKNOWN``, ``OCCUPIED``, ``NON_FLIGHT``) indexed ``[row (y), col (x)]``,
 except :class:`InflatedMap`, the incremental form of inflation that the simulator keeps from step to step.
 
@@ -299,7 +299,7 @@ def encode_observation(
     last_action: int,
     size_cells: int = OBSERVATION_WINDOW_CELLS,
 ) -> dict[str, np.ndarray]:
-    """The policy observation O = {high, thres, last_action} from already inflated maps (DESIGN.md §5).
+    """The policy observation O = {high, thres, last_action} from already inflated maps (docs/design.md §5).
 
     * ``high``: int8 codes (FREE −1, UNKNOWN 0, OCCUPIED 1, NON_FLIGHT 2), ``size_cells``² heading-up window of
       the inflated 0.05 m observed map centred on the robot's cell ``high_cell``;

@@ -1,4 +1,4 @@
-"""Exploration metrics, exactly as DESIGN.md §7 defines them; every report uses these names.
+"""Exploration metrics, exactly as docs/design.md §7 defines them; every report uses these names.
 
 All counts are over the building's interior cells at 0.20 m (walls inside the outline included):
 

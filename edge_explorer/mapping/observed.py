@@ -1,4 +1,4 @@
-"""Two-level observed maps: 0.05 m and 0.20 m trinary codes built from the same observations (DESIGN.md §5).
+"""Two-level observed maps: 0.05 m and 0.20 m trinary codes built from the same observations (docs/design.md §5).
 
 The high-res map holds what the sensor saw, cell by cell. The low-res map is always derived from it by
 :func:`coarsen_codes` — a low cell is OCCUPIED if any high cell of its block is OCCUPIED, else FREE if any is
@@ -10,7 +10,7 @@ Update rule: OctoMap-style log-odds per high-res cell, with the parameters the d
 scan is a patch of codes (UNKNOWN where it saw nothing); each of its known cells adds one hit (OCCUPIED) or one miss
 (FREE) to that cell's log-odds, and the cell's code is OCCUPIED at or above the threshold, FREE below it. A first
 observation therefore decides the code on its own, while a cell seen free many times is no longer flipped by one
-noisy hit (the planar sensor labels neighbours of every return occupied with some probability, DESIGN.md §6) — the
+noisy hit (the planar sensor labels neighbours of every return occupied with some probability, docs/design.md §6) — the
 map the simulator trains with accumulates evidence the way the map the daemon flies with does.
 """
 

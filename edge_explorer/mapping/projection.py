@@ -1,6 +1,6 @@
 """Projection of a 3-D voxel map to the 2-D trinary map the simulator, predictor and planner use.
 
-Only a horizontal band of the voxel map counts (DESIGN.md §5): voxels whose centre lies below ``min_z_m`` (1.5 m,
+Only a horizontal band of the voxel map counts (docs/design.md §5): voxels whose centre lies below ``min_z_m`` (1.5 m,
 the height below which furniture is "low" and not part of the 2-D plan) are ignored, and so is the ceiling band
 from ``max_z_m`` (2.5 m) up. The flight height, 1.7 m, lies inside the band. Column rule, per (row, col):
 

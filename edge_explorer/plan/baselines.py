@@ -1,7 +1,7 @@
 """The common interface of the exploration planners the benchmark flies, and their registry.
 
 A planner sees what the vehicle has observed and where it is — and, where a predictor runs, the fused map
-(DESIGN.md §5: observed cells plus the thresholded prediction treated as known) — and answers one of the six action
+(docs/design.md §5: observed cells plus the thresholded prediction treated as known) — and answers one of the six action
 ids (:class:`~edge_explorer.sim.dynamics.Action`) per step, so every method flies the same vehicle and path lengths
 compare. ``None`` means the planner has nothing left to explore. Planners choose *goals* (where to look next); the
 shared :class:`~edge_explorer.plan.frontier.GoalPlanner` loop plans the path through observed free space and

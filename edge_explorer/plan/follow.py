@@ -1,4 +1,4 @@
-"""Path following with the six discrete actions of the learned planner (DESIGN.md §6).
+"""Path following with the six discrete actions of the learned planner (docs/design.md §6).
 
 The baselines (nearest frontier, FUEL-style) and the daemon's frontier fallback fly the same vehicle as the DRL
 policy: one of six actions per step, whose motion depends on the previous action (the shared action table). So a
@@ -10,7 +10,7 @@ one inside the caution margin (so a vehicle flies there only through narrow pass
 pushed there flies out before anything else).
 Looking two steps ahead lets it brake or start a turn early, as the momentum requires.
 
-Motion noise (DESIGN.md §6: a forward step's position error has a standard deviation of about 3.5 cm per axis) is
+Motion noise (docs/design.md §6: a forward step's position error has a standard deviation of about 3.5 cm per axis) is
 larger than the hard margin, and a 0.05 m cell boundary can lie anywhere within it; a follower that only checks the
 mean motion therefore ends steps where the next, unavoidable, drift enters the NON_FLIGHT band (measured: 3–18
 collisions per 100 test-split flights). So among the safe sequences it prefers those whose first step is *robust*:

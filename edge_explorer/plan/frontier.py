@@ -1,7 +1,7 @@
 """Frontiers, the shared goal-planner loop and the Nearest Frontier baseline (Yamauchi 1997).
 
 Frontier (:func:`frontier_mask`): a FREE cell with an UNKNOWN 8-neighbour. The planners look for frontiers on the
-0.20 m observed map, the grid coverage is counted on (DESIGN.md §7): a coarse cell is known as soon as one of its
+0.20 m observed map, the grid coverage is counted on (docs/design.md §7): a coarse cell is known as soon as one of its
 0.05 m cells is, so every frontier there borders cells whose observation raises coverage, and the unknown specks
 of the fine map that do not count (a ray's grazing gap, the inside of a wall) are no targets.
 

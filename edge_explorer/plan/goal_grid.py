@@ -1,6 +1,6 @@
 """The learned goal planner's action space: a coarse heading-up grid of goal cells and the mask of valid goals.
 
-The goal policy (DESIGN.md §6) scores the cells of a *spatial action map*: the heading-up 0.20 m observation window
+The goal policy (docs/design.md §6) scores the cells of a *spatial action map*: the heading-up 0.20 m observation window
 (:data:`~edge_explorer.mapping.ego.OBSERVATION_WINDOW_CELLS` = 237 cells, robot at its centre, heading along +row)
 pooled ``GOAL_POOL`` × ``GOAL_POOL`` — 59 × 59 goal cells of 0.80 m, so a fully convolutional network's output lines
 up with its input (ego goal cell (i, j) covers ego rows [4i, 4i + 4) and columns [4j, 4j + 4)).

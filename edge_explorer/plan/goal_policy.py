@@ -3,7 +3,7 @@
 At each decision — when the planner loop of :class:`~edge_explorer.plan.frontier.GoalPlanner` asks for a goal: at
 the start, when the target is seen or predicted, when a goal failed — :func:`goal_decision` builds
 
-* the paper's observation (DESIGN.md §5): heading-up windows of the inflated 0.05 m observed map and of the
+* the paper's observation (docs/design.md §5): heading-up windows of the inflated 0.05 m observed map and of the
   inflated fused 0.20 m map (observed ∪ thresholded prediction), and the one-hot last motion, exactly as
   :func:`~edge_explorer.mapping.ego.observation_from_maps` makes them for every stage;
 * the goal options (:mod:`edge_explorer.plan.goal_grid`): the 59 × 59 heading-up goal cells, valid where a

@@ -1,7 +1,7 @@
 """The learned goal policy at run time: the policy observation in, 59 × 59 goal-cell scores out (no torch).
 
 The observation is the one every stage builds with :func:`~edge_explorer.mapping.ego.observation_from_maps`
-(DESIGN.md §5): ``high`` and ``thres`` (237 × 237 heading-up code windows) and ``last_action`` (the one-hot of 6).
+(docs/design.md §5): ``high`` and ``thres`` (237 × 237 heading-up code windows) and ``last_action`` (the one-hot of 6).
 The exported model (ONNX or TFLite, loaded and checked against its card by
 :func:`~edge_explorer.backends.chain.load_model`) follows this contract:
 

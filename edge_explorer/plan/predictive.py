@@ -1,7 +1,7 @@
 """The predictive expert (benchmark method ``predfrontier``): frontier goals on the fused map, scored by the
 information a view from there would add per metre of path.
 
-Fused map (DESIGN.md §5): the observed 0.20 m map with the thresholded prediction treated as known. A *fused
+Fused map (docs/design.md §5): the observed 0.20 m map with the thresholded prediction treated as known. A *fused
 frontier* cell is an observed FREE cell with an 8-neighbour that is UNKNOWN in the fused map, so the vehicle never
 flies to a frontier the predictor has already filled in. When no fused frontier is left (the prediction claims the
 rest of the building) the observed frontier takes over, so the flight can still confirm what the predictor was

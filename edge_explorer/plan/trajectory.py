@@ -1,4 +1,4 @@
-"""Minimum-jerk trajectories between decisions (DESIGN.md §8).
+"""Minimum-jerk trajectories between decisions (docs/design.md §8).
 
 Each decision turns an action into a waypoint; the daemon then flies a quintic (minimum-jerk) segment per axis —
 x, y, z and unwrapped yaw — from the current commanded state to the waypoint over one step period, ending at the

@@ -1,4 +1,4 @@
-"""Action → waypoint, and the safety check every waypoint passes before the daemon flies it (DESIGN.md §8).
+"""Action → waypoint, and the safety check every waypoint passes before the daemon flies it (docs/design.md §8).
 
 **Waypoint.** An action moves the vehicle by the shared action table's mean motion for (previous action, action)
 (:mod:`edge_explorer.sim.dynamics`, momentum included), from the pose the step starts at — the same motion the

@@ -1,4 +1,4 @@
-"""Calibrating the thresholds of dynamic thresholding (DESIGN.md §5) on held-out flights (pure numpy, no torch).
+"""Calibrating the thresholds of dynamic thresholding (docs/design.md §5) on held-out flights (pure numpy, no torch).
 
 The thresholded prediction claims cells the sensor has not seen: interior cells UNKNOWN in the observed map that
 :func:`~edge_explorer.predict.thresholding.thresholded_map` makes FREE or OCCUPIED ("predicted-known" cells). A

@@ -1,7 +1,7 @@
 """The map predictor's input encoding, output meaning and training targets (numpy only, no torch).
 
 Training, evaluation, export calibration and the on-device daemon all call these functions, so the network sees in
-flight exactly what it saw in training (DESIGN.md §2).
+flight exactly what it saw in training (docs/design.md §2).
 
 Input
 -----

@@ -1,6 +1,6 @@
 """The map predictor at run time: observed low-res map in, occupancy probabilities on the same map out (no torch).
 
-One prediction (DESIGN.md §5): the 0.20 m observed map is cut to the north-up ego window around the robot's cell
+One prediction (docs/design.md §5): the 0.20 m observed map is cut to the north-up ego window around the robot's cell
 (:func:`~edge_explorer.mapping.ego.pad_shift`), encoded as in training
 (:func:`~edge_explorer.predict.encoding.encode_windows`), run through an exported model on whichever backend the
 chain loaded it on (:func:`~edge_explorer.backends.chain.load_model`: Edge TPU → LiteRT CPU → onnxruntime CPU, each
@@ -17,8 +17,8 @@ callable the simulator and the benchmark take (:data:`edge_explorer.sim.env.Pred
 flown in the training simulator unchanged.
 
 Its :attr:`PredictorRuntime.thresholds` are those every reader thresholds this model's output with (the daemon, the
-simulator, the benchmark): the card's calibrated ``thresholds`` when it has them (DESIGN.md §5: they win; written by
-``edge-explorer train calibrate-predictor``), the defaults of :class:`~edge_explorer.predict.thresholding.
+simulator, the benchmark): the card's calibrated ``thresholds`` when it has them (docs/design.md §5: they win;
+written by ``edge-explorer train calibrate-predictor``), the defaults of :class:`~edge_explorer.predict.thresholding.
 ThresholdConfig` otherwise.
 """
 

@@ -1,4 +1,4 @@
-"""Dynamic thresholding of the predictor's occupancy probabilities (DESIGN.md §5; pure numpy, no torch).
+"""Dynamic thresholding of the predictor's occupancy probabilities (docs/design.md §5; pure numpy, no torch).
 
     f_t(m) = FREE if m < t_f, OCCUPIED if m > t_o, else UNKNOWN
     t_f    = t_f_max · min(1, 10 · (observed area / max floor-plan area)^4)

@@ -1,4 +1,4 @@
-"""Device profiles (``profiles/*.toml``, DESIGN.md §9): what a target board can do and what each stage may cost.
+"""Device profiles (``profiles/*.toml``, docs/design.md §9): what a target board can do and what each stage may cost.
 
 A profile names the CPU (cores, peak fp32 / int8 throughput per core), the accelerator (``none`` or ``edgetpu``
 with its peak int8 TOPS), memory, the latency budget per stage, the rates, CPU and memory ceilings, and the

@@ -79,7 +79,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
             decision_lead_s=1.0 / profile.rates_hz.depth,
             exploration_planner="predfrontier" if options.planner == "predfrontier" else "frontier",
         )
-        if models.predictor is not None:  # its card's calibrated thresholds win over the defaults (DESIGN.md §5)
+        if models.predictor is not None:  # its card's calibrated thresholds win over the defaults (docs/design.md §5)
             config = replace(config, thresholds=models.predictor.thresholds)
         if options.time_limit_s is not None:
             config = replace(config, time_limit_s=options.time_limit_s)

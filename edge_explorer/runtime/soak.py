@@ -7,7 +7,7 @@ allocated, mapped files) every ``sample_every_s`` for the whole soak. ``soak.jso
 flight's ending, decisions, holds and collisions, and the totals; ``soak.png`` plots the RSS over time with the
 flight boundaries.
 
-The verdict (exit code 0 when it passes, DESIGN.md's reliability list): no flight crashed, 0 collisions, and RSS
+The verdict (exit code 0 when it passes, docs/design.md's reliability list): no flight crashed, 0 collisions, and RSS
 grew by less than :data:`MAX_RSS_GROWTH` from the sixth of the soak on (minute 5 of 30) to its end — after the
 first flights have loaded what every flight uses, the process must not keep growing. A SIGINT or SIGTERM ends the
 flight in progress with a hold and the soak after it.

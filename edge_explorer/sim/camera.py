@@ -6,7 +6,7 @@ reach the ceiling, tall and low furniture their own height). A ray hits a cell's
 point is below the cell's top: on a side face when it enters the cell low enough, on the top face when it comes
 down onto it.
 
-Frames (DESIGN.md §3):
+Frames (docs/design.md §3):
 
 * ``map``: x, y horizontal, z up; yaw counter-clockwise from +x.
 * body (FLU, ROS REP 103): x forward, y left, z up. ``R_map_body = Rz(yaw) · Ry(pitch) · Rx(roll)``; positive

@@ -1,6 +1,6 @@
 """Action dynamics: the (previous action, action) → motion table shared by the simulator and the daemon.
 
-Six discrete actions (DESIGN.md §6). Each lasts one step (default 1 s) and asks the vehicle for a forward motion
+Six discrete actions (docs/design.md §6). Each lasts one step (default 1 s) and asks the vehicle for a forward motion
 (0 or one forward step, 0.5 m) and a turn (0 or ±30°, left = counter-clockwise = positive yaw). What the vehicle
 actually does depends on the speed it carries from the previous action (momentum), so the effect of an action is
 tabulated per (previous action, action) pair.

@@ -1,4 +1,4 @@
-"""The 2-D exploration simulator as a gymnasium environment (DESIGN.md §5–§7, the paper's training setup).
+"""The 2-D exploration simulator as a gymnasium environment (docs/design.md §5–§7, the paper's training setup).
 
 One episode: a floor plan is drawn from the plan set, the vehicle starts at a uniform position of the
 reachable flight space (:func:`~edge_explorer.world.flight_space.reachable_cells`: interior cells the planners can
@@ -31,7 +31,7 @@ Reward
 ``R = −1 + (−l if penalised else ω·[F1(M_thres, t+1) − F1(M_thres, t)])`` with ``l = collision_penalty``,
 ``ω = f1_weight``. An action is penalised if its motion enters OCCUPIED ∪ NON_FLIGHT of the inflated ground
 truth *now* (the vehicle then does not move: it stays where it was and stops), or *next step*: the drift it cannot
-avoid afterwards — hovering after this action — would enter it. F1 is DESIGN.md §7's, on the 0.20 m map.
+avoid afterwards — hovering after this action — would enter it. F1 is docs/design.md §7's, on the 0.20 m map.
 
 Episode end
 -----------

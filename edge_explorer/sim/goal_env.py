@@ -1,4 +1,4 @@
-"""Goal selection as a gymnasium environment: one step per navigation goal (the paper's DRL planner, DESIGN.md §6).
+"""Goal selection as a gymnasium environment: one step per navigation goal (the paper's DRL planner, docs/design.md §6).
 
 Each step the agent picks one of the 59 × 59 heading-up goal cells (:mod:`edge_explorer.plan.goal_grid`); the
 shared planner loop flies the vehicle there through observed free space with the six motions of the training

@@ -1,4 +1,4 @@
-"""Planar depth sensor for training: ray casting on the 0.05 m ground-truth grid (DESIGN.md §6).
+"""Planar depth sensor for training: ray casting on the 0.05 m ground-truth grid (docs/design.md §6).
 
 A scan is a fan of rays over the horizontal field of view (default 87°, a depth camera's) from the vehicle's
 position, each traversed cell by cell (Amanatides–Woo) up to the range (default 4.5 m): the cells a ray crosses

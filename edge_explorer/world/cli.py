@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sheet = psub.add_parser("sheet", help="contact sheet of random generated plans (+ extra plans)")
     sheet.add_argument("--count", type=positive_int, default=24)
     sheet.add_argument("--seed", type=int, default=0)
-    sheet.add_argument("--extra", help="more plans to append, e.g. ../shared/data/realplans")
+    sheet.add_argument("--extra", help="more plans to append, e.g. a folder of map_server .yaml plans")
     sheet.add_argument("--png", type=Path, required=True)
     sheet.set_defaults(func=_sheet)
 

@@ -1,4 +1,4 @@
-"""The generated floor-plan dataset: deterministic splits written as compressed shards (DESIGN.md §4).
+"""The generated floor-plan dataset: deterministic splits written as compressed shards (docs/design.md §4).
 
 Plan ``k`` of split ``s`` is generated from a seed derived from (dataset seed, split, k) only, so any plan — and the
 whole 100-plan test split — can be regenerated without the files, and a shard can be made on any core in any order.

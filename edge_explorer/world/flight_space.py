@@ -24,7 +24,7 @@ Definitions
   Views come from reachable cells on a lattice of ``VIEW_SPACING_M``; a cell seen only through a slit from
   between two lattice points may be missed, which errs on the side of not counting it.
 
-N_M (DESIGN.md §7) counts the observable interior: a room behind a doorway narrower than the vehicle still counts
+N_M (docs/design.md §7) counts the observable interior: a room behind a doorway narrower than the vehicle still counts
 as far as it can be seen through the doorway; the inside of a thick wall, a sliver between two wall lines, or a
 room with no doorway at all cannot be observed by any flight and is dropped (:class:`FlightSpace` reports its
 area, ``plans check`` prints it and ``plans show`` draws it).

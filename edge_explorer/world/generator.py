@@ -1,4 +1,4 @@
-"""Procedural office floor plans that match the paper's training dataset (DESIGN.md §4).
+"""Procedural office floor plans that match the paper's training dataset (docs/design.md §4).
 
 ``generate_plan(seed, name, style)`` draws one building inside the 21 m × 11 m envelope: axis-aligned walls of
 0.10–0.20 m, open doors of 0.80–1.20 m, rooms mostly on the perimeter (internal rooms in the ``internal`` style),

@@ -1,4 +1,4 @@
-"""Grids and cell codes shared by every stage (DESIGN.md §3).
+"""Grids and cell codes shared by every stage (docs/design.md §3).
 
 A grid is ``GridSpec(origin_xy, resolution_m, shape)``: cell (row i, col j) covers
 x ∈ [x0 + j·r, x0 + (j+1)·r), y ∈ [y0 + i·r, y0 + (i+1)·r). Rows grow with y.

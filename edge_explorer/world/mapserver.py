@@ -1,4 +1,4 @@
-"""Loader for ROS map_server maps (YAML + PGM/PNG), the format external floor plans arrive in (DESIGN.md §4).
+"""Loader for ROS map_server maps (YAML + PGM/PNG), the format external floor plans arrive in (docs/design.md §4).
 
 Pixel → state follows map_server's "trinary" mode: p = (255 − v)/255 (or v/255 when ``negate: 1``);
 occupied if p > occupied_thresh, free if p < free_thresh, unknown otherwise. Unknown pixels are treated as solid

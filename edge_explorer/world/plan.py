@@ -1,4 +1,4 @@
-"""The vector floor plan: the resolution-independent source of truth (DESIGN.md §4).
+"""The vector floor plan: the resolution-independent source of truth (docs/design.md §4).
 
 JSON format (``format: "edge-explorer/floorplan"``, ``version: 1``), all lengths in metres, ``map`` frame::
 
@@ -190,7 +190,7 @@ def _parse(data: Any, source: str) -> FloorPlan:
 
 
 def validate_plan(plan: FloorPlan, source: str | None = None) -> None:
-    """Geometric rules of the dataset that need no rasterization (DESIGN.md §4).
+    """Geometric rules of the dataset that need no rasterization (docs/design.md §4).
 
     Connectivity at the robot radius needs a raster: see :func:`edge_explorer.world.raster.check_connected`.
     """

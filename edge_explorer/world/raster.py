@@ -1,7 +1,7 @@
 """Rasterized buildings: occupancy, interior mask and 3-D height map on a :class:`GridSpec`.
 
 Every later stage (simulator, mapping, benchmark, daemon) works on a :class:`PlanRaster`, whatever the source of
-the building (vector JSON or ROS map_server image). Definitions (DESIGN.md §4, §7):
+the building (vector JSON or ROS map_server image). Definitions (docs/design.md §4, §7):
 
 * ``height_m``: top of the obstacle in each cell (0 = open floor); walls reach the ceiling.
 * occupied (2-D plan): ``height_m >= TALL_HEIGHT_M`` — walls and tall furniture. Low furniture lives only in 3-D.
@@ -54,7 +54,7 @@ class PlanRaster:
         boundary: a coarse cell that also holds outside cells counts only if a sensor inside can see into it (it
         holds a free interior cell or a wall face). Otherwise a sliver of perimeter wall that a 0.20 m cell
         straddles would count in N_M although no method can ever observe it; wall cells inside the outline still
-        count, as DESIGN.md §7 asks.
+        count, as docs/design.md §7 asks.
         """
         f = resolution_factor(self.grid.resolution_m, resolution_m)
         grid = self.grid.coarsened(f)

@@ -214,7 +214,7 @@ def test_malformed_cards_are_rejected_with_the_reason(tmp_path: Path) -> None:
 
 
 def test_runtime_path_imports_no_training_framework() -> None:
-    """The modules of this runtime path load without torch, stable-baselines3 or TensorFlow (DESIGN.md §2)."""
+    """The modules of this runtime path load without torch, stable-baselines3 or TensorFlow (docs/design.md §2)."""
     code = (
         "import sys\n"
         "import edge_explorer.backends.chain, edge_explorer.runtime.depth_sources, edge_explorer.sim.vehicle\n"

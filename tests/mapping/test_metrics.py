@@ -1,4 +1,4 @@
-"""DESIGN.md §7 metrics (edge_explorer.mapping.metrics)."""
+"""docs/design.md §7 metrics (edge_explorer.mapping.metrics)."""
 
 import numpy as np
 import pytest

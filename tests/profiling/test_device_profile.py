@@ -21,7 +21,7 @@ def test_shipped_profiles_load():
     for name in list_profiles():
         profile = load_profile(name)
         assert profile.name == name
-        assert profile.rates_hz.setpoint >= 10.0  # PX4 offboard needs > 2 Hz; DESIGN.md §8 asks ≥ 10 Hz
+        assert profile.rates_hz.setpoint >= 10.0  # PX4 offboard needs > 2 Hz; docs/design.md §8 asks ≥ 10 Hz
     assert load_profile("host").measured and not load_profile("coral-usb").measured
     assert load_profile("coral-usb").accelerator.kind == "edgetpu"
     # the paper's reference budgets

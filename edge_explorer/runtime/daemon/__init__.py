@@ -1,4 +1,4 @@
-"""The on-device exploration daemon: depth frames + MAVLink odometry in, position setpoints out (DESIGN.md §8).
+"""The on-device exploration daemon: depth frames + MAVLink odometry in, position setpoints out (docs/design.md §8).
 
 One process, one loop (:class:`Daemon`), no torch. Around the loop the parts it wires together:
 

@@ -42,7 +42,7 @@ class DaemonConfig:
     footprint_clear_m: float = 0.2  # flown space counted as free (below the 0.25 m robot radius; 0 disables)
     # The goal planner that explores without a learned policy (and takes over from one that fails): "frontier"
     # (Nearest Frontier on the observed map) or "predfrontier" (the predictive expert: goals on the fused map,
-    # DESIGN.md §5), plan/baselines.PLANNERS.
+    # docs/design.md §5), plan/baselines.PLANNERS.
     exploration_planner: str = "frontier"
     frontier_retries: int = 1  # times the planner's dropped targets get another chance before "explored"
     progress_every_s: float = 5.0
@@ -65,7 +65,7 @@ class DaemonConfig:
         if self.frontier_retries < 0:
             raise ValueError(f"frontier_retries must be ≥ 0, got {self.frontier_retries}")
         if self.setpoint_rate_hz < 10:
-            raise ValueError(f"setpoint_rate_hz must be ≥ 10 (DESIGN.md §8), got {self.setpoint_rate_hz}")
+            raise ValueError(f"setpoint_rate_hz must be ≥ 10 (docs/design.md §8), got {self.setpoint_rate_hz}")
         positive = (
             "time_limit_s",
             "takeoff_speed_mps",

@@ -148,7 +148,7 @@ class DecisionPipeline:
         )
 
     def _predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
-        """Observed ∪ thresholded prediction on the low-res grid (DESIGN.md §5); None without a predictor."""
+        """Observed ∪ thresholded prediction on the low-res grid (docs/design.md §5); None without a predictor."""
         if self.predictor is None:
             return None
         try:

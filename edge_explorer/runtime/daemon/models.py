@@ -47,7 +47,7 @@ def choose_models(
     num_threads: int = 1,
     model_orders: Mapping[str, tuple[str, ...]] | None = None,
 ) -> ModelChoice:
-    """Load the shipped models the run can use (see DESIGN.md §8 and the module docstring).
+    """Load the shipped models the run can use (see docs/design.md §8 and the module docstring).
 
     ``planner``: ``frontier`` and ``predfrontier`` never load the policy; ``drl`` needs
     ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)

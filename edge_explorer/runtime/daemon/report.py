@@ -135,7 +135,7 @@ class RunReport:
 
 
 class CoverageTruth:
-    """The plan's ground truth at 0.20 m, to measure coverage (DESIGN.md §7) of maps on any nesting grid."""
+    """The plan's ground truth at 0.20 m, to measure coverage (docs/design.md §7) of maps on any nesting grid."""
 
     def __init__(self, raster: PlanRaster) -> None:
         low = raster.coarsened(LOW_RES_M)

@@ -14,7 +14,7 @@ What it does, and why:
 * **Start sequences**: PX4 offboard (stream setpoints, switch to OFFBOARD, arm) and ArduPilot guided (GUIDED, arm,
   take off, then stream).
 * **Frames**: everything outside this module speaks the ``map`` frame (x east, y north, z up, yaw counter-clockwise
-  from +x, FLU body). The ENU↔NED conversion lives here and nowhere else (DESIGN.md §3): :func:`map_to_ned`,
+  from +x, FLU body). The ENU↔NED conversion lives here and nowhere else (docs/design.md §3): :func:`map_to_ned`,
   :func:`ned_to_map`, :func:`yaw_map_to_ned`, :func:`yaw_ned_to_map`, :func:`attitude_ned_to_map`,
   :func:`attitude_map_to_ned`. The simulated vehicle calls these same functions.
 * **Health**: link loss (no autopilot heartbeat for ``link_lost_after_s``), stale odometry (newest sample older

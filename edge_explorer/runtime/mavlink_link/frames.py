@@ -1,5 +1,5 @@
 """The frame conventions of the link: the only place where the ``map`` frame (x east, y north, z up, yaw
-counter-clockwise from +x, FLU body) meets MAVLink's local NED and FRD body (DESIGN.md §3). The simulated vehicle
+counter-clockwise from +x, FLU body) meets MAVLink's local NED and FRD body (docs/design.md §3). The simulated vehicle
 calls these same functions."""
 
 from __future__ import annotations
