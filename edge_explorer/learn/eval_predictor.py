@@ -7,7 +7,8 @@ unshift`), dynamic thresholding (docs/design.md §5) fills the unobserved cells,
 and correct coverage of observed + thresholded prediction, beside the F1 of the observed map alone and the F1 a
 perfect prediction would reach (``f1_ceiling``: every unobserved cell right). The ceiling is below 1 because observed
 cells always win and some are wrong — sensor noise marks free cells beside walls occupied (docs/design.md §6).
-Every reported level (50, 80, 95, 98 %) is a bin edge, so "F1 at 80 %" is exactly the first scan whose true coverage reaches 80 %.
+Every reported level (50, 80, 95, 98 %) is a bin edge, so "F1 at 80 %" is exactly the first scan whose true
+coverage reaches 80 %.
 
 Aggregation: per coverage level, the mean over the plans whose flight reached it (``n`` says how many did: the
 inside of tall furniture is never observable, so not every plan reaches 98 % true coverage).
