@@ -1,6 +1,6 @@
 """The exploration benchmark behind the paper's Table I and its coverage-vs-path-length figure (Fig. 5): the runs.
 
-Methods are planner names (:data:`~edge_explorer.plan.baselines.PLANNERS`: ``frontier``, ``fuel``), optionally
+Methods are planner names (:data:`~edge_explorer.plan.registry.PLANNERS`: ``frontier``, ``fuel``, …), optionally
 with ``+pred``: the paper's "+ Predictor" variants, where the planner still decides on the *observed* map but every
 step the observed map goes through the predictor and coverage is counted on the thresholded prediction
 (docs/design.md §5, §7; the simulator does this when it is given a predictor).
@@ -34,14 +34,13 @@ import numpy as np
 from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.cluster.units import map_units
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.plan.baselines import PLANNERS
-from edge_explorer.plan.goal_policy import GoalPolicy, GoalPolicyPlanner
+from edge_explorer.plan.goal_policy import GoalPolicy
+from edge_explorer.plan.registry import PLANNERS, build_planner
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.world.raster import PlanRaster, clearance_m
 
 PRED_SUFFIX = "+pred"
-DRL = "drl"  # the learned goal policy (docs/design.md §6), flown through the goal-planner loop
 RECORD_FORMAT = "edge-explorer/explore-run"
 START_CLEARANCE_M = 0.5  # from the start pose to the nearest wall
 _START_ATTEMPTS = 100
@@ -93,8 +92,12 @@ def parse_methods(text: str) -> list[str]:
 
 
 def _known_methods() -> list[str]:
-    bases = [*PLANNERS, DRL]
-    return [*bases, *(name + PRED_SUFFIX for name in bases)]
+    return [*PLANNERS, *(name + PRED_SUFFIX for name in PLANNERS)]
+
+
+def needs_policy(method: str) -> bool:
+    """Whether ``method`` flies a learned goal policy (``drl``, ``drl+pred``)."""
+    return PLANNERS[method.removesuffix(PRED_SUFFIX)].needs_policy
 
 
 def _derived_seed(seed: int, plan_name: str, *slot: int) -> int:
@@ -219,12 +222,9 @@ def run_episode(
     # (docs/design.md §5)
     config = EnvConfig(coverage_goal=1.0, max_steps=spec.max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], config, predictor=predictor)
-    if method == DRL:
-        if policy is None:
-            raise EdgeExplorerError(f"{spec.method} needs a policy")
-        planner = GoalPolicyPlanner(policy, table=env.table)
-    else:
-        planner = PLANNERS[method](env.table)
+    if PLANNERS[method].needs_policy and policy is None:
+        raise EdgeExplorerError(f"{spec.method} needs a policy")
+    planner = build_planner(method, env.table, policy)
     planner.reset()
     _, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
     coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
@@ -315,7 +315,7 @@ def plan_specs(
     """Every (method, building, run) of a benchmark, building-major so that early results cover every method."""
     if any(m.endswith(PRED_SUFFIX) for m in methods) and predictor is None:
         raise EdgeExplorerError("the +pred methods need --predictor (e.g. models/predictor); none was given")
-    if any(m.removesuffix(PRED_SUFFIX) == DRL for m in methods) and policy is None:
+    if any(needs_policy(m) for m in methods) and policy is None:
         raise EdgeExplorerError("the drl methods need --policy (e.g. models/policy); none was given")
     names = [r.name for r in rasters]
     if len(set(names)) != len(names):
@@ -335,7 +335,7 @@ def plan_specs(
                         config.coverage_goal,
                         config.max_steps,
                         predictor if method.endswith(PRED_SUFFIX) else None,
-                        policy if method.removesuffix(PRED_SUFFIX) == DRL else None,
+                        policy if needs_policy(method) else None,
                     )
                 )
     return specs

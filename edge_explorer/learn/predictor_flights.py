@@ -194,10 +194,10 @@ class PlannerExplorer:
         return self.planner
 
     def poses(self, scene: Scene, maps: ObservedMaps, start: Pose, rng: np.random.Generator) -> Iterator[Pose]:
-        from edge_explorer.plan.baselines import make_planner
+        from edge_explorer.plan.registry import build_planner
 
         table = dynamics.load_action_table()
-        planner = make_planner(self.planner, table)
+        planner = build_planner(self.planner, table)
         planner.reset()
         pose, previous = start, int(dynamics.Action.HOVER)
         while (action := planner.act(maps, pose, previous)) is not None:

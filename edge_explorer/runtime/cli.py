@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from edge_explorer.plan.registry import PLANNERS
 from edge_explorer.runtime.options import MODELS_DIR, RunOptions
 from edge_explorer.runtime.soak import parse_duration
 
@@ -55,10 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     run.add_argument(
         "--planner",
-        choices=("auto", "drl", "frontier", "predfrontier"),
+        choices=("auto", *PLANNERS),
         default="auto",
-        help="drl: the shipped policy (an error if missing); frontier: Nearest Frontier; predfrontier: the "
-        "predictive expert (goals on the fused map); auto (default): the policy when flight-ready, else frontier",
+        help="; ".join(f"{name}: {entry.summary}" for name, entry in PLANNERS.items())
+        + " (drl flies the shipped policy: an error if missing); auto (default): the policy when flight-ready, "
+        "else frontier",
     )
     run.add_argument(
         "--profile",

@@ -59,6 +59,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
 
         from edge_explorer.bench.explore import run_seed
         from edge_explorer.mapping.voxels import VoxelRegion
+        from edge_explorer.plan.registry import PLANNERS
         from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
         from edge_explorer.runtime.depth_sources import Recorder
         from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
@@ -72,12 +73,14 @@ def fly(options: RunOptions) -> dict[str, Any]:
         for note in models.notes:
             log.info(note)
         setpoint_rate_hz = max(profile.rates_hz.setpoint, 10.0)
+        entry = PLANNERS.get(options.planner)  # auto and drl: frontier explores when no policy flies
+        explorer = options.planner if entry is not None and not entry.needs_policy else "frontier"
         config = DaemonConfig(
             return_home=options.return_home,
             autopilot=options.autopilot,
             setpoint_rate_hz=setpoint_rate_hz,
             decision_lead_s=1.0 / profile.rates_hz.depth,
-            exploration_planner="predfrontier" if options.planner == "predfrontier" else "frontier",
+            exploration_planner=explorer,
         )
         if models.predictor is not None:  # its card's calibrated thresholds win over the defaults (docs/design.md §5)
             config = replace(config, thresholds=models.predictor.thresholds)

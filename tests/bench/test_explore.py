@@ -9,6 +9,7 @@ from edge_explorer.bench import explore
 from edge_explorer.bench.summary import failures, markdown_failures
 from edge_explorer.cli import main
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.plan.registry import PlannerEntry
 from edge_explorer.world.plan import save_plan_json
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
@@ -182,7 +183,7 @@ def test_runs_threshold_with_the_predictor_s_calibrated_thresholds(rooms, tmp_pa
 class _GivesUp:
     """A planner that finds nothing to explore from the first step."""
 
-    def __init__(self, table=None):
+    def __init__(self, config=None, table=None, policy=None):
         pass
 
     def reset(self):
@@ -201,7 +202,7 @@ def test_a_short_run_says_why(rooms, monkeypatch):
     assert why["text"].startswith("step limit 5 reached") and why["unexplored_m2"] > 5.0
     assert 0 < why["unexplored_reachable_m2"] < why["unexplored_m2"]
 
-    monkeypatch.setitem(explore.PLANNERS, "frontier", _GivesUp)
+    monkeypatch.setitem(explore.PLANNERS, "frontier", PlannerEntry("gives up", False, _GivesUp))
     record = explore.run_episode(rooms, explore.RunSpec("frontier", rooms.name, 0, 1, pose, 0.95, 50, None))
     assert record["ending"] == "explored" and record["why"]["reason"] == "planner_stall"
     page = markdown_failures(failures([record]))

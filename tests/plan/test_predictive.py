@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from edge_explorer.plan.baselines import make_planner
 from edge_explorer.plan.predictive import (
     PredictiveConfig,
     PredictiveFrontier,
@@ -13,6 +12,7 @@ from edge_explorer.plan.predictive import (
     fused_frontier_mask,
     visible_unknown,
 )
+from edge_explorer.plan.registry import build_planner
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 from edge_explorer.world.raster import rasterize
@@ -112,7 +112,7 @@ def test_the_expert_explores_the_two_rooms_without_collision():
     rooms = rasterize(two_room_plan(), 0.05)
     env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=400))
     _, info = env.reset(seed=3, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
-    planner = make_planner("predfrontier", env.table)
+    planner = build_planner("predfrontier", env.table)
     assert isinstance(planner, PredictiveFrontier)
     previous = 0
     for _ in range(400):

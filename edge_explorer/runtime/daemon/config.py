@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from edge_explorer.mapping.projection import HeightBand
 from edge_explorer.mapping.voxels import FusionConfig
 from edge_explorer.plan.follow import FollowConfig
+from edge_explorer.plan.registry import PLANNERS
 from edge_explorer.predict.thresholding import ThresholdConfig
 from edge_explorer.runtime.mavlink_link import PX4_OFFBOARD_MODE
 from edge_explorer.world.grid import LOW_RES_M
@@ -40,9 +41,9 @@ class DaemonConfig:
     max_hold_s: float = 60.0  # inputs not back after this long: end the flight (the autopilot's failsafe takes over)
     reanchor_distance_m: float = 0.5
     footprint_clear_m: float = 0.2  # flown space counted as free (below the 0.25 m robot radius; 0 disables)
-    # The goal planner that explores without a learned policy (and takes over from one that fails): "frontier"
-    # (Nearest Frontier on the observed map) or "predfrontier" (the predictive expert: goals on the fused map,
-    # docs/design.md §5), plan/baselines.PLANNERS.
+    # The goal planner that explores without a learned policy (and takes over from one that fails): any planner of
+    # plan/registry.PLANNERS that needs no policy, e.g. "frontier" (Nearest Frontier on the observed map) or
+    # "predfrontier" (the predictive expert: goals on the fused map, docs/design.md §5).
     exploration_planner: str = "frontier"
     frontier_retries: int = 1  # times the planner's dropped targets get another chance before "explored"
     progress_every_s: float = 5.0
@@ -56,8 +57,10 @@ class DaemonConfig:
     follow: FollowConfig = field(default_factory=lambda: FollowConfig(noise_sigmas=0.0))
 
     def __post_init__(self) -> None:
-        if self.exploration_planner not in ("frontier", "predfrontier"):
-            raise ValueError(f"exploration_planner must be frontier or predfrontier, got {self.exploration_planner!r}")
+        entry = PLANNERS.get(self.exploration_planner)
+        if entry is None or entry.needs_policy:
+            choices = ", ".join(name for name, e in PLANNERS.items() if not e.needs_policy)
+            raise ValueError(f"exploration_planner must be one of {choices}, got {self.exploration_planner!r}")
         if not 0 < self.coverage_goal <= 1:
             raise ValueError(f"coverage_goal must be in (0, 1], got {self.coverage_goal}")
         if self.autopilot not in AUTOPILOT_MODES:

@@ -12,10 +12,9 @@ import time
 from collections.abc import Callable
 
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
-from edge_explorer.plan.frontier import GoalPlanner, NearestFrontier, PlannerConfig
-from edge_explorer.plan.goal_policy import GoalPolicyPlanner
+from edge_explorer.plan.frontier import GoalPlanner
 from edge_explorer.plan.policy import PolicyRuntime
-from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
+from edge_explorer.plan.registry import build_planner
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.runtime.daemon.config import DaemonConfig
 from edge_explorer.runtime.daemon.decisions import DecisionPipeline, TimedScores
@@ -72,13 +71,8 @@ class Daemon(FlightPhases, InputWatchdog, DecisionPipeline, RunRecord):
     def _make_planner(self) -> GoalPlanner:
         """The goal planner that explores, with this daemon's follower settings: the learned goal policy when one
         is loaded, else ``config.exploration_planner``; also the one a failing policy hands over to (without it)."""
-        planner_config = PlannerConfig(follow=self.config.follow)
-        if self.policy is not None:
-            scores = TimedScores(self.policy, self.timings)
-            return GoalPolicyPlanner(scores, PredictiveConfig(planner=planner_config), self.table)
-        if self.config.exploration_planner == "predfrontier":
-            return PredictiveFrontier(PredictiveConfig(planner=planner_config), self.table)
-        return NearestFrontier(planner_config, self.table)
+        scores = TimedScores(self.policy, self.timings) if self.policy is not None else None
+        return build_planner(self.planner_name, self.table, scores, follow=self.config.follow)
 
     @property
     def planner_name(self) -> str:

@@ -12,6 +12,7 @@ from edge_explorer.backends.card import CARD_FILE
 from edge_explorer.backends.chain import load_model
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.policy import PolicyRuntime
+from edge_explorer.plan.registry import PLANNERS
 from edge_explorer.predict.predictor import PredictorRuntime
 
 
@@ -49,8 +50,8 @@ def choose_models(
 ) -> ModelChoice:
     """Load the shipped models the run can use (see docs/design.md §8 and the module docstring).
 
-    ``planner``: ``frontier`` and ``predfrontier`` never load the policy; ``drl`` needs
-    ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
+    ``planner``: the registry's planners that need no policy (``frontier``, ``predfrontier``, …) never load it;
+    ``drl`` needs ``models_dir/policy/card.json`` and fails with :class:`ModelSetupError` (one line)
     when it is missing or cannot be loaded; ``auto`` uses the policy only when its card says it is flight-ready
     (``flight_ready.ready``: the building evaluation of these weights passed, see
     :func:`edge_explorer.learn.goal_card.flight_ready`) and it loads, and the frontier planner otherwise, saying
@@ -74,7 +75,7 @@ def choose_models(
     notes: list[str] = []
     policy = None
     policy_card = models_dir / "policy" / CARD_FILE
-    if planner in ("frontier", "predfrontier"):
+    if planner in PLANNERS and not PLANNERS[planner].needs_policy:
         notes.append(f"planner: {planner} (asked for)")
     elif planner == "auto" and policy_card.is_file() and not (ready := _flight_ready(policy_card))[0]:
         notes.append(f"planner: frontier (the DRL policy is not flight-ready: {ready[1]}; --planner drl flies it)")
