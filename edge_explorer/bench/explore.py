@@ -38,6 +38,7 @@ from edge_explorer.plan.goal_policy import GoalPolicy
 from edge_explorer.plan.registry import PLANNERS, build_planner
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.sim.episode import Episode
 from edge_explorer.world.raster import PlanRaster, clearance_m
 
 PRED_SUFFIX = "+pred"
@@ -227,42 +228,29 @@ def run_episode(
     planner = build_planner(method, env.table, policy)
     planner.reset()
     _, info = env.reset(seed=spec.seed, options={"start_pose": spec.start_pose})
+    episode = Episode(env, planner, info, coverage_goal=spec.coverage_goal, max_steps=spec.max_steps)
     coverage, correct, path = [info["coverage"]], [info["correct_coverage"]], [info["path_length_m"]]
-    previous, collisions, planner_s = 0, 0, 0.0
     start = time.perf_counter()
-    while True:
-        if coverage[-1] >= spec.coverage_goal and correct[-1] >= spec.coverage_goal:
-            ending = "goal"
-            break
-        if len(path) > spec.max_steps:
-            ending = "step_cap"
-            break
-        t = time.perf_counter()
-        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
-        planner_s += time.perf_counter() - t
-        if action is None:
-            ending = "explored"
-            break
-        _, _, _, _, info = env.step(action)
-        collisions += int(info["collided"])
-        previous = 0 if info["collided"] else action  # after a collision the vehicle has stopped
-        coverage.append(info["coverage"])
-        correct.append(info["correct_coverage"])
-        path.append(info["path_length_m"])
+    for step in episode.steps():
+        coverage.append(step.info["coverage"])
+        correct.append(step.info["correct_coverage"])
+        path.append(step.info["path_length_m"])
+    ending = episode.ending
+    assert ending is not None
     return {
         "format": RECORD_FORMAT,
         "spec": asdict(spec),
         "ending": ending,
         "why": explain_ending(env, ending, coverage[-1], correct[-1], spec),
         "steps": len(path) - 1,
-        "collisions": collisions,
+        "collisions": episode.collisions,
         "final_coverage": coverage[-1],
         "final_correct_coverage": correct[-1],
         "path_length_m": path[-1],
         "path_at_coverage_m": _first_crossing(coverage, path, spec.coverage_goal),
         "path_at_correct_coverage_m": _first_crossing(correct, path, spec.coverage_goal),
         "wall_s": time.perf_counter() - start,
-        "planner_s": planner_s,
+        "planner_s": episode.planner_s,
         "curves": {
             "coverage": np.round(coverage, 5).tolist(),
             "correct_coverage": np.round(correct, 5).tolist(),

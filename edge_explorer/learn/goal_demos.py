@@ -41,6 +41,7 @@ from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.sim.episode import Episode
 from edge_explorer.world.raster import PlanRaster
 
 DEMO_FORMAT = "edge-explorer/goal-demos"
@@ -90,15 +91,7 @@ def fly_demo(
     planner = LabellingPlanner(policy, env.table)
     planner.reset()
     _, info = env.reset(seed=seed)
-    previous = 0
-    for _ in range(config.max_steps):
-        if info["coverage"] >= config.coverage_goal and info["correct_coverage"] >= config.coverage_goal:
-            break
-        action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
-        if action is None:
-            break
-        _, _, _, _, info = env.step(action)
-        previous = 0 if info["collided"] else action
+    Episode(env, planner, info, coverage_goal=config.coverage_goal, max_steps=config.max_steps).run()
     return planner.records
 
 

@@ -33,6 +33,7 @@ from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.sim import dynamics
 from edge_explorer.sim.dynamics import wrap_angle_rad
+from edge_explorer.sim.episode import move, previous_after
 from edge_explorer.sim.sensor import SensorConfig, scan
 from edge_explorer.world.grid import LOW_RES_M, UNKNOWN, GridSpec
 from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster, configuration_space
@@ -201,11 +202,8 @@ class PlannerExplorer:
         planner.reset()
         pose, previous = start, int(dynamics.Action.HOVER)
         while (action := planner.act(maps, pose, previous)) is not None:
-            x, y, yaw = dynamics.step_pose(table, *pose, previous, action, rng)
-            if dynamics.swept_path_blocked(scene.blocked, scene.grid, pose[:2], (x, y)):
-                previous = int(dynamics.Action.HOVER)
-            else:
-                pose, previous = (x, y, yaw), action
+            pose, collided = move(table, scene.blocked, scene.grid, pose, previous, action, rng)
+            previous = previous_after(action, collided)
             yield pose
 
 

@@ -68,6 +68,7 @@ from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim import dynamics
 from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable
+from edge_explorer.sim.episode import move, previous_after
 from edge_explorer.sim.sensor import SensorConfig, scan
 from edge_explorer.world.flight_space import FlightClearance, reachable_cells
 from edge_explorer.world.grid import (
@@ -280,18 +281,17 @@ class ExplorationEnv(gym.Env):
         timer = time.perf_counter
         t0 = timer()
         rng = self.np_random if self.config.motion_noise else None
-        x, y, yaw = dynamics.step_pose(self.table, self._x, self._y, self._yaw, self._motion_previous, a, rng)
         grid = truth.raster.grid
-        collided = dynamics.swept_path_blocked(truth.blocked, grid, (self._x, self._y), (x, y))
-        if collided:
+        pose = (self._x, self._y, self._yaw)
+        (x, y, yaw), collided = move(self.table, truth.blocked, grid, pose, self._motion_previous, a, rng)
+        if collided:  # it stopped at the obstacle
             penalised = True
-            self._motion_previous = Action.HOVER  # it stopped at the obstacle
         else:
             drift = dynamics.body_to_map(x, y, yaw, *self.table.mean_step(a, Action.HOVER))
             penalised = dynamics.swept_path_blocked(truth.blocked, grid, (x, y), drift[:2])
             self._path_length_m += math.hypot(x - self._x, y - self._y)
             self._x, self._y, self._yaw = x, y, yaw
-            self._motion_previous = Action(a)
+        self._motion_previous = Action(previous_after(a, collided))
         self._last_action = Action(a)
         self._steps += 1
         self._path.append((self._x, self._y))

@@ -35,6 +35,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
@@ -48,6 +49,7 @@ from edge_explorer.plan.goal_policy import (
 )
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.sim.episode import Episode
 from edge_explorer.world.raster import PlanRaster
 
 NUM_GOALS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
@@ -91,6 +93,18 @@ class _AgentGoals(PredictiveFrontier):
     def restore(self, state: dict[str, Any]) -> None:
         vars(self).update(state)
 
+    def act(
+        self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
+    ) -> int | None:
+        """The loop's next action; when it stops to ask for a goal, its state is restored to before this call first,
+        so that the step is replayed with the agent's goal pending (:meth:`snapshot`)."""
+        state = self.snapshot()
+        try:
+            return super().act(maps, pose, previous_action, fused_low)
+        except _DecisionNeeded:
+            self.restore(state)
+            raise
+
     def expert_goal(self, view: View, pose: Pose) -> Goal | None:
         return super().select_goal(view, pose)
 
@@ -111,7 +125,7 @@ class GoalEnv(gym.Env):
         self._planner: _AgentGoals | None = None
         self._pending: _DecisionNeeded | None = None
         self._info: dict[str, Any] = {}
-        self._previous = 0
+        self._episode: Episode | None = None
         self._done = False
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -119,7 +133,10 @@ class GoalEnv(gym.Env):
         _, self._info = self.sim.reset(seed=seed, options=options)
         self._planner = _AgentGoals(self.sim)
         self._planner.reset()
-        self._previous = 0
+        c = self.config
+        self._episode = Episode(
+            self.sim, self._planner, self._info, coverage_goal=c.coverage_goal, max_steps=c.max_steps
+        )
         self._done = False
         _, _, collisions = self._fly()
         return self._observation(), {**self._info, "collisions": collisions}
@@ -180,27 +197,18 @@ class GoalEnv(gym.Env):
     def _fly(self) -> tuple[bool, bool, int]:
         """Fly until the loop needs a goal (sets ``_pending``) or the episode ends: (terminated, truncated,
         collisions)."""
-        assert self._planner is not None
+        assert self._episode is not None
         self._pending = None
         collisions = 0
-        goal = self.config.coverage_goal
-        while True:
-            if self._info["coverage"] >= goal and self._info["correct_coverage"] >= goal:
-                return True, False, collisions
-            if self._info["steps"] >= self.config.max_steps:
-                return False, True, collisions
-            state = self._planner.snapshot()
-            try:
-                action = self._planner.act(self.sim.maps, self.sim.pose, self._previous, self.sim.thresholded_low)
-            except _DecisionNeeded as decision:
-                self._planner.restore(state)  # the step is replayed with the agent's goal pending
-                self._pending = decision
-                return False, False, collisions
-            if action is None:  # nothing left to explore
-                return True, False, collisions
-            _, _, _, _, self._info = self.sim.step(action)
-            collisions += int(self._info["collided"])
-            self._previous = 0 if self._info["collided"] else action
+        try:
+            for step in self._episode.steps():
+                self._info = step.info
+                collisions += int(step.collided)
+        except _DecisionNeeded as decision:  # the planner is back where it was before the step (_AgentGoals.act)
+            self._pending = decision
+            return False, False, collisions
+        truncated = self._episode.ending == "step_cap"  # else the goal, or nothing left to explore
+        return not truncated, truncated, collisions
 
     def _observation(self) -> dict[str, np.ndarray]:
         if self._pending is not None:
