@@ -52,7 +52,7 @@ def test_after_a_collision_the_next_previous_action_is_hover(rooms):
     steps = list(episode.steps())
     collided = [s.collided for s in steps]
     assert not collided[0] and any(collided)  # it flies into the south wall
-    for step, given_next in zip(steps, planner.given[1:]):
+    for step, given_next in zip(steps, planner.given[1:], strict=True):
         assert given_next == (Action.HOVER if step.collided else step.action)
     assert episode.collisions == sum(collided) == sum(s.info["collided"] for s in steps)
 
