@@ -1,5 +1,5 @@
 """Fly the predictive expert (or the goal policy) with planner-setting overrides on val plans: the sweep that chose
-the expert's settings (docs/policy/goal_policy.md, sections "Status" of sessions 11 and 12).
+the expert's settings (docs/policy/goal_policy.md; the session notes are in git history).
 
 Each run is the benchmark's run (``bench explore``'s start pose, noise seed and end rule: 95 % coverage and 95 %
 correct coverage, 1500 steps) on one val plan, so the figures pair with ``bench explore --plans`` on the same
@@ -7,18 +7,18 @@ plans. Overrides are fields of :class:`~edge_explorer.plan.predictive.Predictive
 fields of the path follower's :class:`~edge_explorer.plan.follow.FollowConfig` (every planner flies it), with a
 ``planner.`` prefix of the goal loop's :class:`~edge_explorer.plan.frontier.PlannerConfig`::
 
-    python docs/policy/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
-    python docs/policy/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
-    python docs/policy/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
-    python docs/policy/expert_sweep.py --name ns4 --first 40 --count 96 follow.noise_sigmas=4
-    python docs/policy/expert_sweep.py --name gr1 --first 40 --count 96 planner.goal_radius_m=1.0
-    python docs/policy/expert_sweep.py --name x2 --first 40 --count 96 --noise-scale 2  # a vehicle twice as noisy
-    python docs/policy/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
+    python scripts/expert_sweep.py --name open --first 40 --count 96 open_prediction=True
+    python scripts/expert_sweep.py --name nf03 --first 136 --count 96 near_fallback_ratio=0.3
+    python scripts/expert_sweep.py --name nf --first 40 --count 96 --planner frontier
+    python scripts/expert_sweep.py --name ns4 --first 40 --count 96 follow.noise_sigmas=4
+    python scripts/expert_sweep.py --name gr1 --first 40 --count 96 planner.goal_radius_m=1.0
+    python scripts/expert_sweep.py --name x2 --first 40 --count 96 --noise-scale 2  # a vehicle twice as noisy
+    python scripts/expert_sweep.py --name drl --first 40 --count 32 --planner drl --policy models/policy
 
 It prints the mean path at 95 % coverage, runs that reached it and collisions, and writes every run to
 ``runs/expert_sweep/NAME.json``. Two sweeps of the same plans pair run by run (mean ± s.e. of A − B)::
 
-    python docs/policy/expert_sweep.py --compare s15_lam0.15 s14_drl
+    python scripts/expert_sweep.py --compare s15_lam0.15 s14_drl
 
 Tune on val plans only: the test split and A-D are the acceptance.
 """

@@ -3,7 +3,7 @@ add, on the **test** split, for the shipped predictor and for any other exported
 
 Run from the repository root::
 
-    python docs/predictor/heldout_precision.py models/predictor runs/pred_old --json docs/predictor/heldout_test.json
+    python scripts/heldout_precision.py models/predictor runs/pred_old --json docs/predictor/heldout_test.json
 
 Each model is scored with its own card's thresholds, with the sensor noise of training (0.1) and without it, on
 samples taken as ``train calibrate-predictor`` takes them (first scan at 50 / 80 / 95 % true coverage of the

@@ -1,7 +1,7 @@
 """Check a profiling report's host figures against an independent measurement of the same calls on the same inputs.
 
     edge-explorer profile --profile host --record runs/profile-recording --out docs/profiling
-    python docs/profiling/independent_check.py docs/profiling/report.json [--recording runs/profile-recording]
+    python scripts/independent_check.py docs/profiling/report.json [--recording runs/profile-recording]
 
 ``edge-explorer profile`` times the stages inside the daemon's running loop (its StageTimings) and each model with
 its own timer. With ``--record`` the profiler also keeps every frame the loop fused, with the pose it was fused
@@ -17,7 +17,7 @@ the same way. Three replays: back to back (nothing else between the calls); with
 each frame's pose before that frame is fused, as the loop does in the same thread; and paced as recorded, the
 renderer between frames: the thread sleeps until each frame's recorded time, as the loop's thread waits for the
 camera. The paced replay is the closest to the loop's conditions: on this host a thread that has idled runs the
-same calls up to twice as slowly for the next tens of milliseconds (``docs/profiling/stage_conditions.py``), and
+same calls up to twice as slowly for the next tens of milliseconds (measured in session 38; git history), and
 the loop's thread idles most of every frame period, while a back-to-back replay never does. The fuse calls
 are also compared by thread CPU time (the loop meters it when recording), and the loop's calls that the scheduler
 never preempted are compared on their own: they separate time spent computing from time spent waiting for a core.

@@ -4,7 +4,7 @@ The daemon's acceptance flights are real-time and use ~9 % of a core each, so th
 one ``edge-explorer run --plans X --runs 5 --compare BENCH --json runs/acc/X.json`` per building; this script joins
 their flights with the same summary, Markdown and plot as a single ``run --plans A,B,C,D`` would write::
 
-    python docs/runtime/merge_acceptance.py --compare runs/s10/bundled.json --out docs/runtime/acceptance_h200 \
+    python scripts/merge_acceptance.py --compare docs/bench/policy_bundled.json --out docs/runtime/acceptance_NAME \
         runs/s10/acc/A.json runs/s10/acc/B.json runs/s10/acc/C.json runs/s10/acc/D.json
 """
 
@@ -27,7 +27,7 @@ def main() -> None:
     flights = sorted((f for d in docs for f in d["flights"]), key=lambda f: (f["run"], f["plan"]))
     table = summarize(flights, load_reference(args.compare))
     doc = {
-        "command": " && ".join(d["command"] for d in docs) + " (merged by docs/runtime/merge_acceptance.py)",
+        "command": " && ".join(d["command"] for d in docs) + " (merged by scripts/merge_acceptance.py)",
         "plans": ",".join(d["plans"] for d in docs),
         "runs_per_plan": docs[0]["runs_per_plan"],
         "time_limit_s": docs[0]["time_limit_s"],

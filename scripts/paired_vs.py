@@ -2,11 +2,11 @@
 the new path at 95 % coverage and at 95 % correct coverage minus the old (mean ± s.e.), runs with a collision, runs
 that reached each goal; then the issue-#21 ratios inside the new file.
 
-    python docs/bench/paired_vs.py NEW.json OLD.json
+    python scripts/paired_vs.py NEW.json OLD.json
 """
 
+import argparse
 import json
-import sys
 from collections import defaultdict
 
 import numpy as np
@@ -47,4 +47,8 @@ def main(new_path: str, old_path: str) -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("new", help="the new `bench explore` JSON")
+    parser.add_argument("old", help="the old one, flown with the same seeds and starts")
+    args = parser.parse_args()
+    main(args.new, args.old)

@@ -8,13 +8,13 @@ coverage without a collision and is at least ``--margin`` metres shorter than th
 observation, the mask, the cell it chose) become demonstrations in the goal-demos format, ready for
 ``edge-explorer train goal-bc --init models/policy/policy.safetensors``::
 
-    python docs/policy/session24/self_imitation.py --first 3000 --count 120 --out runs/s24/si/train
-    python docs/policy/session24/self_imitation.py --first 3120 --count 24 --out runs/s24/si/val
+    python scripts/self_imitation.py --first 3000 --count 120 --out runs/s24/si/train
+    python scripts/self_imitation.py --first 3120 --count 24 --out runs/s24/si/val
     edge-explorer train goal-bc --train-demos runs/s24/si/train --val-demos runs/s24/si/val \\
         --init models/policy/policy.safetensors --steps 600 --lr 1e-4 --out runs/s24/si/bc
-    python docs/policy/expert_sweep.py --name s24_si --first 40 --count 96 --planner drl \\
+    python scripts/expert_sweep.py --name s24_si --first 40 --count 96 --planner drl \\
         --policy runs/s24/si/bc/best.safetensors
-    python docs/policy/expert_sweep.py --compare s24_si s23_drl_base
+    python scripts/expert_sweep.py --compare s24_si s23_drl_base
 
 Train plans only (the sweep's val plans 40–135 judge the result); ``summary.json`` in ``--out`` lists every plan's
 greedy and sampled paths.
@@ -44,7 +44,7 @@ from edge_explorer.world.dataset import iter_shard_plans
 from edge_explorer.world.plan import FloorPlan
 from edge_explorer.world.raster import PlanRaster
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # docs/policy: the sweep's benchmark run
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/: the sweep's benchmark run (expert_sweep.py)
 from expert_sweep import fly_run  # noqa: E402
 
 _WORKER: dict = {}

@@ -4,7 +4,7 @@ For each building of a `bench explore` JSON, each run is compared with the avera
 method (leave-one-out: a new flight against a bench it is not part of), and the normal model with the runs'
 coefficient of variation gives the expected count and the chance that all of a given number of flights pass.
 
-    python docs/policy/session38/within15.py docs/bench/policy_bundled.json drl+pred --flights 5
+    python scripts/within15.py docs/bench/policy_bundled.json drl+pred --flights 5
 """
 
 import argparse
