@@ -48,8 +48,8 @@ test: $(VENV)/.stamp-test
 venv: $(VENV)/.stamp-all
 
 lint: $(VENV)/.stamp-test
-	$(BIN)/ruff check edge_explorer tests
-	$(BIN)/ruff format --check edge_explorer tests
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

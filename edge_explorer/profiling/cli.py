@@ -6,7 +6,7 @@ shipped model on every backend available here (:mod:`edge_explorer.profiling.mod
 to ``--out`` with a section per ``--profile``; a Markdown summary goes to the terminal. The ``host`` profile
 describes the machine the measurements come from and is the reference every estimate is scaled from. Each model runs
 in the loop on the first backend of the host profile's order for it (``[backends]``). ``--record DIR`` keeps the
-flight's frames, poses and per-call timings for ``docs/profiling/independent_check.py``; ``--replay DIR`` flies with
+flight's frames, poses and per-call timings for ``scripts/independent_check.py``; ``--replay DIR`` flies with
 those frames instead of rendering them.
 Exit code 0 whatever the verdicts (they are the report's content).
 """
@@ -68,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=Path,
         metavar="DIR",
         help="also record every fused depth frame with its pose and the loop's per-call timings into DIR (about "
-        "100 kB a frame), for docs/profiling/independent_check.py to replay the same calls",
+        "100 kB a frame), for scripts/independent_check.py to replay the same calls",
     )
     p.add_argument(
         "--replay",

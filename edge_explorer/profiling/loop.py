@@ -10,7 +10,7 @@ With ``record_dir`` the flight is also recorded (the daemon's :class:`~edge_expl
 every fused frame with the pose it was fused with) together with ``loop_timings.json`` — every fuse, project and
 predictor call's duration in the loop, where the measured window starts, after how many fused frames each decision
 came, and the thread CPU time and preemptions of each fuse call — so an independent measurement can replay exactly
-the calls the loop timed, on the same inputs (``docs/profiling/independent_check.py``).
+the calls the loop timed, on the same inputs (``scripts/independent_check.py``).
 
 CPU: like ``edge-explorer run``, the daemon's share is the process's CPU time minus the simulated world's (the
 vehicle's physics thread and the depth renderer, which is the camera's work on a real drone), over the measured

@@ -55,7 +55,7 @@ def test_the_loop_is_measured_after_warm_up(measured):
 
 
 def test_the_recording_holds_every_fused_frame_and_the_loops_own_timings(measured):
-    """What docs/profiling/independent_check.py replays: the frames, their poses and the loop's per-call times."""
+    """What scripts/independent_check.py replays: the frames, their poses and the loop's per-call times."""
     root, loop, _, _ = measured
     assert loop.recording == str(root / "recording")
     timings = json.loads((root / "recording" / RECORDED_TIMINGS).read_text())
