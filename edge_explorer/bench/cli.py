@@ -57,6 +57,7 @@ def _explore(args: argparse.Namespace) -> int:
 
     from edge_explorer.bench import explore as bench
     from edge_explorer.bench.summary import (
+        METRICS,
         failures,
         figure_panels,
         markdown_failures,
@@ -84,9 +85,11 @@ def _explore(args: argparse.Namespace) -> int:
 
     records = bench.run_benchmark(rasters, specs, workers, args.out_dir, progress, args.ray)
     summary = summarize(records, methods)
-    paired = paired_differences(records, methods)
+    paired = [p for metric in METRICS for p in paired_differences(records, methods, metric)]
     table = markdown_table(summary, methods, per_plan=len(rasters) <= 20)
-    table += "\n" + markdown_paired(paired) if len(methods) > 1 else ""
+    if len(methods) > 1:
+        for metric in METRICS:
+            table += "\n" + markdown_paired([p for p in paired if p["metric"] == metric])
     command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
     failed = failures(records)
     table += markdown_failures(failed)

@@ -8,6 +8,7 @@ from edge_explorer.bench.summary import (
     markdown_table,
     mean_curves,
     paired_differences,
+    path_at,
     summarize,
 )
 
@@ -61,6 +62,24 @@ def test_paired_difference_compares_methods_building_by_building():
     assert paired["stderr_m"] == pytest.approx(2.0)  # std (ddof 1) of (−1, 3) is 2√2, over √2
     assert paired["median_m"] == pytest.approx(1.0)
     assert "| fuel − frontier | +1.0 ± 2.0 | +1.0 | 2 | 1 |" in markdown_paired([paired])
+
+
+def test_path_at_90_percent_correct_coverage_comes_from_the_curves():
+    record = fake_record("A", "frontier", 0, 2.0)  # correct coverage 0.1, 0.4, 0.9 at 0, 1, 2 m
+    assert path_at(record, "path_at_correct_90_m") == 2.0
+    record["curves"]["correct_coverage"] = [0.1, 0.4, 0.89]
+    assert path_at(record, "path_at_correct_90_m") is None
+    assert path_at(record, "path_at_coverage_m") == 2.0
+    records = [fake_record("A", "frontier", 0, 2.0), fake_record("A", "fuel", 0, 2.0)]
+    records[1]["curves"]["correct_coverage"] = [0.1, 0.95, 0.95]
+    summary = summarize(records, ["frontier", "fuel"])
+    assert summary["plans"]["A"]["fuel"]["path_at_correct_90_m"]["avg"] == 1.0
+    assert "| A | frontier | 2.0 / 2.0 / 2.0 / 0.0 | 1/1 | 2.0 / 2.0 / 2.0 / 0.0 | 1/1 |" in markdown_table(
+        summary, ["frontier", "fuel"]
+    )
+    (paired,) = paired_differences(records, ["frontier", "fuel"], "path_at_correct_90_m")
+    assert (paired["metric"], paired["mean_m"]) == ("path_at_correct_90_m", -1.0)
+    assert "path at 90 % correct coverage" in markdown_paired([paired])
 
 
 def test_mean_curves_hold_the_final_value():
