@@ -41,9 +41,9 @@ that needs no room segmentation), ``wall face`` the length of free-space boundar
                       5–8 m            0.15 [0.00–0.45]                 0.17 [0.13–0.25]
                       ≥ 8 m            0.00 [0.00–0.25]                 0.60 [0.48–0.65]
     wall face [m per m² free]          0.82 [0.70–0.89]                 0.46 [0.42–0.53]
-    rooms per 100 m² (segmented, *)      4.6 [2.8–7.1]                    0.6 [0.5–0.7]
-    room area median [m²] (segm., *)       16 [12–23]                       48 [22–52]
-    corridor width [m] (segm., *)          2.2 [1.8–3.5]                    2.8 [2.0–3.2]
+    rooms per 100 m² (segmented, *)    4.6 [2.8–7.1]                    0.6 [0.5–0.7]
+    room area median [m²] (segm., *)   16 [12–23]                       48 [22–52]
+    corridor width [m] (segm., *)      2.2 [1.8–3.5]                    2.8 [2.0–3.2]
 
 (*) doorways cut by an opening of 0.9 m radius; the real drawings have wide gaps in their walls, so their rooms merge
 and these real figures are upper bounds on room size (lower bounds on room count). The gap is real all the same:
