@@ -6,6 +6,8 @@ References (comma-separated lists allowed):
 
 * ``A`` … ``D`` — the bundled benchmark buildings (``edge_explorer/data/plans``);
 * ``test`` — the 100-plan test split, regenerated deterministically (:mod:`edge_explorer.world.dataset`);
+* ``floors-test``, ``floors-val`` — the whole office floors of a split, ``floor-test-00003`` — one of them
+  (:mod:`edge_explorer.world.floors`; a floor of 100 m or more takes minutes to cut to its flight space);
 * ``path/plan.json`` — a vector plan; ``path/map.yaml`` — a ROS map_server map;
 * a folder — every ``*.json`` / ``*.yaml`` in it, or the plans in its ``*.jsonl.gz`` shards.
 """
@@ -73,8 +75,16 @@ def _load_path(path: Path) -> list[tuple[PlanRaster, FlightSpace]]:
     if path.suffix in (".yaml", ".yml"):
         return [_map_with_space(path)]
     if not path.exists():
-        raise PlanError(f"{path}: no such plan; use A-D, 'test', a .json plan, a map_server .yaml, or a folder")
+        raise PlanError(
+            f"{path}: no such plan; use A-D, 'test', 'floors-test', a .json plan, a map_server .yaml, or a folder"
+        )
     raise PlanError(f"{path}: unknown plan file type {path.suffix!r}; expected .json or .yaml")
+
+
+def _floors(ref: str) -> list[FloorPlan] | None:
+    from edge_explorer.world.floors import resolve_floor_reference
+
+    return resolve_floor_reference(ref)
 
 
 def load_buildings_with_space(ref: str) -> list[tuple[PlanRaster, FlightSpace]]:
@@ -90,6 +100,8 @@ def load_buildings_with_space(ref: str) -> list[tuple[PlanRaster, FlightSpace]]:
             from edge_explorer.world.dataset import regenerate_split
 
             out.extend(_plan_with_space(p) for p in regenerate_split("test"))
+        elif (floors := _floors(part)) is not None:
+            out.extend(_plan_with_space(p) for p in floors)
         else:
             out.extend(_load_path(Path(part)))
     return out

@@ -53,6 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sheet.add_argument("--count", type=positive_int, default=24)
     sheet.add_argument("--seed", type=int, default=0)
     sheet.add_argument("--extra", help="more plans to append, e.g. a folder of map_server .yaml plans")
+    sheet.add_argument("--plans", help="draw these plans instead of random generated ones, e.g. floors-test")
     sheet.add_argument("--png", type=Path, required=True)
     sheet.set_defaults(func=_sheet)
 
@@ -142,11 +143,16 @@ def _sheet(args: argparse.Namespace) -> int:
     from edge_explorer.world.dataset import generate_checked
     from edge_explorer.world.render import save_contact_sheet
 
-    rng = np.random.default_rng(args.seed)
-    indices = sorted(rng.choice(45_000, size=args.count, replace=False).tolist())
-    plans = [generate_checked(0, "train", int(k)) for k in indices]
-    rasters = [plan_to_raster(p) for p in plans]
-    titles = [f"{p.name} · {p.meta.get('style', '?')} · {p.meta.get('rooms', '?')} rooms" for p in plans]
+    if args.plans:
+        from edge_explorer.world.floors import sheet_rasters
+
+        rasters, titles = sheet_rasters(args.plans)
+    else:
+        rng = np.random.default_rng(args.seed)
+        indices = sorted(rng.choice(45_000, size=args.count, replace=False).tolist())
+        plans = [generate_checked(0, "train", int(k)) for k in indices]
+        rasters = [plan_to_raster(p) for p in plans]
+        titles = [f"{p.name} · {p.meta.get('style', '?')} · {p.meta.get('rooms', '?')} rooms" for p in plans]
     if args.extra:
         extra = load_buildings(args.extra)
         rasters += extra

@@ -255,19 +255,21 @@ def _door_on(rng: np.random.Generator, seg: _Segment, t_int: int) -> Box:
 
 
 def _place_doors(
-    rng: np.random.Generator, lay: Layout, geo: _Geometry, t_int: int
+    rng: np.random.Generator, lay: Layout, geo: _Geometry, t_int: int, closed: frozenset[int] = frozenset()
 ) -> tuple[list[Box], dict[int, list[Box]]]:
-    """Spanning tree from the hub(s) over feasible adjacencies, then a few loop-making extra doors."""
+    """Spanning tree from the hub(s) over feasible adjacencies, then a few loop-making extra doors.
+
+    Labels in ``closed`` (a whole floor's lift shafts) get no door and stay out of the tree."""
     feasible: dict[tuple[int, int], list[_Segment]] = {}
     for key, segs in geo.segments.items():
         ok = [s for s in segs if s.usable >= _MIN_DOOR_U]
-        if ok:
+        if ok and key[0] not in closed and key[1] not in closed:
             feasible[key] = ok
     labels = range(1, len(lay.kinds))
     hubs = [lb for lb in labels if lay.kinds[lb] in ("corridor", "hall")]
     in_tree = {hubs[0] if hubs else 1}
     chosen: list[tuple[int, int]] = []
-    while len(in_tree) < len(lay.kinds) - 1:
+    while len(in_tree) < len(lay.kinds) - 1 - len(closed):
         frontier = sorted(k for k in feasible if (k[0] in in_tree) != (k[1] in in_tree))
         if not frontier:
             raise Retry("a room has no wall long enough for a door to the rest of the building")

@@ -14,6 +14,8 @@ JSON format (``format: "edge-explorer/floorplan"``, ``version: 1``), all lengths
     }
 
 A door's width is its extent along the wall it crosses (the longer side of its box) and must be ≥ 0.80 m.
+The footprint must fit the paper's 21 m × 11 m envelope, or :data:`FLOOR_FOOTPRINT_M` for a whole office floor
+(``meta.family == "floor"``, drawn by :mod:`edge_explorer.world.floors`); ``meta`` is otherwise informational.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ FORMAT_NAME = "edge-explorer/floorplan"
 FORMAT_VERSION = 1
 
 MAX_FOOTPRINT_M = (21.0, 11.0)  # long side, short side (the paper's envelope)
+FLOOR_FOOTPRINT_M = (200.0, 120.0)  # long side, short side of a whole floor (meta "family": "floor")
 MIN_DOOR_WIDTH_M = 0.80
 TALL_HEIGHT_M = 1.5  # furniture at least this tall is part of the 2-D plan (flight height 1.7 m)
 DEFAULT_CEILING_M = 3.0
@@ -206,10 +209,11 @@ def validate_plan(plan: FloorPlan, source: str | None = None) -> None:
             )
     b = plan.bounds()
     long_side, short_side = max(b.width_m, b.height_m), min(b.width_m, b.height_m)
-    if long_side > MAX_FOOTPRINT_M[0] + 1e-6 or short_side > MAX_FOOTPRINT_M[1] + 1e-6:
+    envelope = FLOOR_FOOTPRINT_M if plan.meta.get("family") == "floor" else MAX_FOOTPRINT_M
+    if long_side > envelope[0] + 1e-6 or short_side > envelope[1] + 1e-6:
         raise PlanError(
             f"{src}: footprint {b.width_m:.2f} m × {b.height_m:.2f} m exceeds the "
-            f"{MAX_FOOTPRINT_M[0]:g} m × {MAX_FOOTPRINT_M[1]:g} m envelope"
+            f"{envelope[0]:g} m × {envelope[1]:g} m envelope"
         )
     if not plan.walls:
         raise PlanError(f"{src}: a plan needs walls")
