@@ -24,18 +24,18 @@ PATHS_M = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0)
 def _daemon(args: argparse.Namespace) -> None:
     from edge_explorer.cli import main
     from edge_explorer.mapping.metrics import map_metrics  # noqa: F401 - the truth's metrics use it
-    from edge_explorer.runtime.daemon import report
+    from edge_explorer.runtime.daemon import record as run_record
 
     rows: list[tuple[float, float, float]] = []
-    original = report.RunRecord._record_progress
+    original = run_record.RunRecord.record_progress
 
-    def record(self, now, odometry, maps, thresholded):  # noqa: ANN001 - the daemon's own signature
-        original(self, now, odometry, maps, thresholded)
-        if self.truth is not None and self._metrics is not None:
+    def record(self, now, odometry, maps, thresholded, phase):  # noqa: ANN001 - the daemon's own signature
+        original(self, now, odometry, maps, thresholded, phase)
+        if self.truth is not None and self.metrics is not None:
             observed = self.truth.metrics(maps.low, maps.low_grid, None)
-            rows.append((self._path_length_m, self._metrics.coverage, observed.coverage))
+            rows.append((self.path_length_m, self.metrics.coverage, observed.coverage))
 
-    report.RunRecord._record_progress = record
+    run_record.RunRecord.record_progress = record
     out_dir = args.out.with_suffix("")
     code = main(["run", "--plan", args.plan, "--run-index", str(args.run_index), "--no-return", "--out", str(out_dir)])
     _write(args.out, [rows])
