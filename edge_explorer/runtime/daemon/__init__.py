@@ -63,19 +63,35 @@ along a path over observed free space, with the same six actions) and hovers the
 Every stage is timed (:class:`StageTimings`, reused by the profiling report) and the run is summed up in a
 :class:`RunReport`.
 
-Where each part lives (one module each, read :mod:`.loop` first):
+How it is built (read :mod:`.loop` first). :class:`Daemon` composes plain parts, each built from explicit inputs
+and owning its own state, each testable alone; what two of them share is a small explicit object, not an attribute
+of the daemon:
 
-* :mod:`.loop` — :class:`Daemon`, the loop itself;
-* :mod:`.phases` — the flight-phase state machine (take-off, climb, explore, hold, re-engage, return home);
-* :mod:`.watchdog` — the input watchdog (stale odometry, pose jumps, link loss, autopilot mode, bad frames);
-* :mod:`.decisions` — the decision pipeline (project → predict → threshold → plan → waypoint → trajectory);
-* :mod:`.setpoints` — the setpoint stream; :mod:`.report` — timings, progress, coverage and the run report;
+* :class:`~.state.FlightState` (:mod:`.state`) — where the flight stands: phase, home, stop reason, ending;
+  :class:`~.state.FlightMaps` — the voxel maps and the flown footprint;
+* :class:`~.watchdog.InputWatchdog` (:mod:`.watchdog`; config, link, the vehicle's top speed, timings, maps, state,
+  record, recorder) — the input checks (stale odometry, pose jumps, link loss, autopilot mode, no depth) and frame
+  ingestion; it reports a pose jump and the daemon starts maps, goal planner and home afresh;
+* :class:`~.phases.FlightPhases` (:mod:`.phases`; config, link, action table, setpoint feeder, state, maps,
+  record) — take-off, climb, explore, hold, re-engage, the way home;
+* :class:`~.decisions.DecisionPipeline` (:mod:`.decisions`; config, link, action table, timings, setpoint feeder,
+  maps, phases, record, policy, predictor) — project → predict → threshold → plan → waypoint → trajectory; it owns
+  the goal planner (built through :func:`~edge_explorer.plan.registry.build_planner`) and drops a failing model;
+* :class:`~.record.RunRecord` (:mod:`.record`; coverage goal, timings, truth) — the counts, holds, path and
+  coverage timeline, the progress line and the :class:`RunReport` (its types: :mod:`.report`);
+* :class:`SetpointFeeder` (:mod:`.setpoints`) — the setpoint stream;
 * :mod:`.config` — :class:`DaemonConfig`; :mod:`.models` — which shipped models a run flies.
+
+What the parts need from one another beyond that (the latest odometry pose, the coverage, the previous action, the
+planner's name, whether the link was lost in control) the daemon's loop passes as method arguments.
 """
 
 from edge_explorer.runtime.daemon.config import AUTOPILOT_MODES, STALL_BLAME_S, DaemonConfig, band_z_range_m
+from edge_explorer.runtime.daemon.decisions import DecisionPipeline
 from edge_explorer.runtime.daemon.loop import Daemon
 from edge_explorer.runtime.daemon.models import ModelChoice, ModelSetupError, choose_models
+from edge_explorer.runtime.daemon.phases import FlightPhases
+from edge_explorer.runtime.daemon.record import RunRecord
 from edge_explorer.runtime.daemon.report import (
     STAGES,
     CoverageTruth,
@@ -86,7 +102,8 @@ from edge_explorer.runtime.daemon.report import (
     StageTimings,
 )
 from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
-from edge_explorer.runtime.daemon.watchdog import frame_problem
+from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
+from edge_explorer.runtime.daemon.watchdog import InputCheck, InputWatchdog, frame_problem
 
 __all__ = [
     "AUTOPILOT_MODES",
@@ -95,10 +112,17 @@ __all__ = [
     "CoverageTruth",
     "Daemon",
     "DaemonConfig",
+    "DecisionPipeline",
     "DecisionView",
+    "FlightMaps",
+    "FlightPhases",
+    "FlightState",
+    "InputCheck",
+    "InputWatchdog",
     "ModelChoice",
     "ModelSetupError",
     "Progress",
+    "RunRecord",
     "RunReport",
     "SetpointFeeder",
     "StageStats",

@@ -17,7 +17,12 @@ the odometry pose.
 
 **A policy that fails** (its model raises, or answers non-finite scores) hands over to the configured frontier
 planner for the rest of the flight, said in the log. When the planner has nothing left while frontier cells
-remain, its dropped targets get ``frontier_retries`` more chances."""
+remain, its dropped targets get ``frontier_retries`` more chances.
+
+The pipeline owns the goal planner, the models and the previous action; it reads the shared
+:class:`~.state.FlightMaps`, asks the :class:`~.phases.FlightPhases` for the phase, the end of exploration and the
+way home, queues its segments on the setpoint stream and tells the :class:`~.record.RunRecord` about every decision
+and its coverage."""
 
 from __future__ import annotations
 
@@ -31,17 +36,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.mapping.projection import project
 from edge_explorer.plan.follow import FreeSpace
-from edge_explorer.plan.frontier import frontier_mask
+from edge_explorer.plan.frontier import GoalPlanner, frontier_mask
 from edge_explorer.plan.policy import PolicyRuntime
+from edge_explorer.plan.registry import build_planner
 from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import WaypointPlanner
+from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.predict.thresholding import thresholded_map
+from edge_explorer.runtime.daemon.config import DaemonConfig
+from edge_explorer.runtime.daemon.phases import FlightPhases
+from edge_explorer.runtime.daemon.record import RunRecord
 from edge_explorer.runtime.daemon.report import DecisionView, StageTimings
+from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
+from edge_explorer.runtime.daemon.state import FlightMaps
+from edge_explorer.runtime.mavlink_link import MavlinkLink
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.sim.dynamics import Action
-from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec
+from edge_explorer.sim.dynamics import Action, ActionTable
+from edge_explorer.world.grid import GridSpec
 
 log = logging.getLogger(__name__)
 
@@ -61,27 +73,78 @@ class TimedScores:
             return self.policy.scores(observation)
 
 
-class DecisionPipeline:
-    """The daemon's decisions (see the module docstring). Owns the previous action, the policy's hand-over and
-    the frontier retries; reads the daemon's maps, flown footprint, models, ``frontier`` (the goal planner that
-    explores), ``table``, ``_feeder`` and phase."""
+def make_planner(
+    config: DaemonConfig, table: ActionTable, policy: PolicyRuntime | None, timings: StageTimings
+) -> GoalPlanner:
+    """The goal planner that explores, from the planner registry with the daemon's follower settings: the learned
+    goal policy's (``drl``) when ``policy`` is loaded, else ``config.exploration_planner`` (also the one a failing
+    policy hands over to)."""
+    scores = TimedScores(policy, timings) if policy is not None else None
+    name = "drl" if policy is not None else config.exploration_planner
+    return build_planner(name, table, scores, follow=config.follow)
 
-    def _init_decisions(self) -> None:
+
+class DecisionPipeline:
+    """The daemon's decisions (see the module docstring).
+
+    Inputs: ``config``; ``link`` (the latest odometry); ``table``, the action table; ``timings``; ``feeder``, the
+    setpoint stream the segments go to (and whose reference a step starts from); ``maps``, projected at each
+    decision; ``phases``, the flight's phases; ``record``, told about decisions and coverage; ``policy`` and
+    ``predictor``, the models (either may be dropped in flight when it fails). Owns the goal planner
+    (:attr:`planner`), the previous action, the frontier retries and the latest decision's maps (:attr:`view`)."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        link: MavlinkLink,
+        table: ActionTable,
+        timings: StageTimings,
+        feeder: SetpointFeeder,
+        maps: FlightMaps,
+        phases: FlightPhases,
+        record: RunRecord,
+        policy: PolicyRuntime | None = None,
+        predictor: PredictorRuntime | None = None,
+    ) -> None:
+        self.config = config
+        self.link = link
+        self.table = table
+        self.timings = timings
+        self.feeder = feeder
+        self.maps = maps
+        self.phases = phases
+        self.record = record
+        self.policy = policy
+        self.predictor = predictor
+        self.planner = make_planner(config, table, policy, timings)
+        self.view: DecisionView | None = None
         self._previous_action = int(Action.HOVER)
         self._frontier_retries = 0
         self._candidate_s = 0.0
 
+    @property
+    def planner_name(self) -> str:
+        return "drl" if self.policy is not None else self.config.exploration_planner
+
+    @property
+    def previous_action(self) -> int:
+        return self._previous_action
+
+    def restart_at_rest(self) -> None:
+        """The next step starts at rest where the vehicle is (after a hold)."""
+        self._previous_action = int(Action.HOVER)
+
     def _step_start(self, now: float, odometry: Odometry) -> tuple[TrajectoryState, float]:
         """The state the next segment starts from, and when: the reference at the end of the current segment, or
         rest at the odometry pose when there is none or the vehicle is too far from it."""
-        end_s = self._feeder.end_s
+        end_s = self.feeder.end_s
         if end_s is not None:
-            reference = self._feeder.state_at(now)
+            reference = self.feeder.state_at(now)
             assert reference is not None
             off_m = math.hypot(reference.position[0] - odometry.x_m, reference.position[1] - odometry.y_m)
             if off_m <= self.config.reanchor_distance_m:
                 start_s = max(end_s, now)
-                state = self._feeder.state_at(start_s)
+                state = self.feeder.state_at(start_s)
                 assert state is not None
                 return state, start_s
             log.warning("vehicle %.2f m off its reference: the next step starts where it is", off_m)
@@ -89,8 +152,9 @@ class DecisionPipeline:
         z = self.config.flight_height_m
         return TrajectoryState.at_rest(odometry.x_m, odometry.y_m, z, odometry.yaw_rad), now
 
-    def _decide(self, frame_in_s: float, frame_in_cpu_s: float) -> None:
-        assert self.maps is not None
+    def decide(self, frame_in_s: float, frame_in_cpu_s: float) -> None:
+        """One decision, the frame that triggered it in at ``frame_in_s`` (``frame_in_cpu_s`` of thread CPU time):
+        the next waypoint's segment queued on the setpoint stream."""
         cfg, timed = self.config, self.timings.timed
         now = time.monotonic()
         with timed("mavlink_io"):
@@ -99,9 +163,7 @@ class DecisionPipeline:
         start_state, start_s = self._step_start(now, odometry)
         pose = (float(start_state.position[0]), float(start_state.position[1]), float(start_state.position[3]))
         with timed("project"):
-            high, high_grid = project(self.maps.high, cfg.band)
-            high[(self._flown != 0) & (high == UNKNOWN)] = FREE
-            low, low_grid = project(self.maps.low, cfg.band)
+            high, high_grid, low, low_grid = self.maps.project(cfg.band)
         maps = ObservedMaps(high_grid, low_grid, high, low)
         low_cell = _cell(low_grid, pose)
         # The prediction feeds the goal planner's fused map and the coverage count. When Nearest Frontier decides
@@ -112,10 +174,10 @@ class DecisionPipeline:
         )
         thresholded = None
         if not predict_after:
-            thresholded = self._predict(maps, low_cell)
-            self._record_progress(now, odometry, maps, thresholded)
-        if self._phase == "exploring":
-            self._check_end_of_exploration(now)
+            thresholded = self.predict(maps, low_cell)
+            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase)
+        if self.phases.phase == "exploring":
+            self.phases.check_end_of_exploration(now, self.record.coverage)
         self._candidate_s = 0.0
         start = time.perf_counter()
         planner = WaypointPlanner(self.table, FreeSpace.from_codes(high, high_grid), cfg.follow.safe_distance_m)
@@ -126,28 +188,27 @@ class DecisionPipeline:
             np.array([*waypoint.velocity[:2], 0.0, waypoint.velocity[2]]),
             np.zeros(4),
         )
-        self._feeder.follow(min_jerk_segment(start_state, end, self.table.model.step_s), start_s)
+        self.feeder.follow(min_jerk_segment(start_state, end, self.table.model.step_s), start_s)
         # The candidates' own stage (planner, the policy inside it) ran inside this block and is timed on its own.
         self.timings.add("waypoint_trajectory", time.perf_counter() - start - self._candidate_s)
         self._previous_action = waypoint.action
-        self._decisions += 1
-        self._sources[waypoint.source] = self._sources.get(waypoint.source, 0) + 1
+        self.record.decision(waypoint.source)
         self.timings.add("decision", time.monotonic() - frame_in_s)
         self.timings.add("decision_cpu", time.thread_time() - frame_in_cpu_s)
         if predict_after:
-            thresholded = self._predict(maps, low_cell)
-            self._record_progress(now, odometry, maps, thresholded)
+            thresholded = self.predict(maps, low_cell)
+            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase)
         self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
         log.debug(
             "decision %d: %s %s → (%.2f, %.2f)",
-            self._decisions,
+            self.record.decisions,
             waypoint.source,
             Action(waypoint.action).name,
             waypoint.x_m,
             waypoint.y_m,
         )
 
-    def _predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
+    def predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
         """Observed ∪ thresholded prediction on the low-res grid (docs/design.md §5); None without a predictor."""
         if self.predictor is None:
             return None
@@ -182,29 +243,29 @@ class DecisionPipeline:
         Returning: the next action along the way home. Then hover. Nothing once home: the vehicle holds.
         """
         previous = self._previous_action
-        if self._phase == "exploring":
+        if self.phases.phase == "exploring":
             with self._candidate_stage("planner"):
-                action = self._planner_action(maps, pose, previous, thresholded)
-                if action is None and self._retry_frontiers(maps):
-                    action = self._planner_action(maps, pose, previous, thresholded)
+                action = self.planner_action(maps, pose, previous, thresholded)
+                if action is None and self.retry_frontiers(maps):
+                    action = self.planner_action(maps, pose, previous, thresholded)
             if action is None:
-                self._finish_exploring("explored")
+                self.phases.finish_exploring("explored")
             else:
                 yield "policy" if self.policy is not None else "frontier", action
-        if self._phase == "returning":
+        if self.phases.phase == "returning":
             with self._candidate_stage("planner"):
-                action = self._home_action(maps, pose)
+                action = self.phases.home_action(maps, pose, previous)
             yield "home", action
-        if self._phase in ("exploring", "returning"):
+        if self.phases.phase in ("exploring", "returning"):
             yield "hover", int(Action.HOVER)
 
-    def _planner_action(
+    def planner_action(
         self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int, thresholded: np.ndarray | None
     ) -> int | None:
         """The exploring goal planner's action; a learned policy that fails hands over to the configured frontier
         planner here, for the rest of the flight (a model that fails in flight must not take the daemon down)."""
         try:
-            return self.frontier.act(maps, pose, previous, thresholded)
+            return self.planner.act(maps, pose, previous, thresholded)
         except Exception as exc:  # noqa: BLE001 - see the docstring
             if self.policy is None:
                 raise
@@ -215,10 +276,10 @@ class DecisionPipeline:
                 self.config.exploration_planner,
             )
             self.policy = None
-            self.frontier = self._make_planner()
-            return self.frontier.act(maps, pose, previous, thresholded)
+            self.planner = make_planner(self.config, self.table, None, self.timings)
+            return self.planner.act(maps, pose, previous, thresholded)
 
-    def _retry_frontiers(self, maps: ObservedMaps) -> bool:
+    def retry_frontiers(self, maps: ObservedMaps) -> bool:
         """Whether to give the frontier planner's dropped targets another chance (and reset it) when it has nothing
         left while frontier cells remain: a target dropped early — unseen from where the vehicle stalled, or cut off
         by a phantom obstacle since cleared — may be reachable in the map as it is now."""
@@ -232,7 +293,7 @@ class DecisionPipeline:
             self._frontier_retries,
             self.config.frontier_retries,
         )
-        self.frontier.reset()
+        self.planner.reset()
         return True
 
 

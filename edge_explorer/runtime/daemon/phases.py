@@ -3,75 +3,115 @@
 **Take-off**: wait for the autopilot's heartbeat and odometry, engage OFFBOARD (PX4) or GUIDED with a take-off
 (ArduPilot), start the voxel maps around the take-off point (home) and climb to flight height on a minimum-jerk
 segment. **Exploring** until the coverage goal, the time limit, or the frontier planner has nothing left
-(:meth:`FlightPhases._finish_exploring`). **Returning**: along a path home over observed free space, with the same
+(:meth:`FlightPhases.finish_exploring`). **Returning**: along a path home over observed free space, with the same
 six actions, until there or ``return_time_limit_s``. **Home**: hover for ``home_hover_s``, then done.
 
-**Holding** (:meth:`FlightPhases._enter_hold`): on any input problem the watchdog reports, the setpoint stream
+**Holding** (:meth:`FlightPhases.enter_hold`): on any input problem the watchdog reports, the setpoint stream
 stops and the link holds the latest odometry pose; the daemon resumes when the input is back (restarting the climb
 when it held during take-off), ends the flight after ``max_hold_s``, and re-engages OFFBOARD when PX4 left it
 because our setpoints stopped reaching it (ArduPilot keeps GUIDED through a link loss: if it left, its failsafe
-acted and the run ends)."""
+acted and the run ends).
+
+Where the flight stands (phase, home, stop reason, ending) is the shared :class:`~.state.FlightState`; the voxel
+maps the take-off starts are the shared :class:`~.state.FlightMaps`; holds go into the :class:`~.record.RunRecord`.
+What the phases need from the other parts (the latest odometry, the coverage, the previous action, whether the link
+was lost while in control) comes in as method arguments."""
 
 from __future__ import annotations
 
 import logging
 import time
 
-import numpy as np
-
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.plan.follow import FreeSpace, choose_action
 from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import path_home
-from edge_explorer.runtime.daemon.config import band_z_range_m
-from edge_explorer.runtime.mavlink_link import LinkError
-from edge_explorer.sim.dynamics import Action
+from edge_explorer.runtime.daemon.config import DaemonConfig
+from edge_explorer.runtime.daemon.record import RunRecord
+from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
+from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
+from edge_explorer.runtime.mavlink_link import LinkError, MavlinkLink
+from edge_explorer.runtime.mavlink_link import Pose as Odometry
+from edge_explorer.sim.dynamics import ActionTable
 
 log = logging.getLogger(__name__)
 
 
 class FlightPhases:
-    """The daemon's phases, holds and the way home (see the module docstring). Owns the phase, the stop reason and
-    the ending, home and the exploration times, the current hold; reads the daemon's ``link``, ``config``,
-    ``_feeder`` and ``table``."""
+    """The daemon's phases, holds and the way home (see the module docstring).
 
-    def _init_phases(self) -> None:
-        self._stop_reason: str | None = None
-        self._ending: str | None = None
-        self._phase = "takeoff"  # takeoff → exploring → returning → home → done
-        self._home_xy: tuple[float, float] | None = None
+    Inputs: ``config``; ``link`` (start sequence, hold, re-engage); ``table``, the actions the way home flies;
+    ``feeder``, the setpoint stream (the climb's segment; cleared on a hold); ``state``, moved along; ``maps``,
+    started at take-off; ``record``, told about every hold. Owns the current hold (its reason and start), the
+    exploration's start and end and when the vehicle arrived home."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        link: MavlinkLink,
+        table: ActionTable,
+        feeder: SetpointFeeder,
+        state: FlightState,
+        maps: FlightMaps,
+        record: RunRecord,
+    ) -> None:
+        self.config = config
+        self.link = link
+        self.table = table
+        self.feeder = feeder
+        self.state = state
+        self.maps = maps
+        self.record = record
         self._home_since_s: float | None = None
         self._explore_start_s: float | None = None
         self._explore_end_s: float | None = None
         self._hold_reason: str | None = None
         self._hold_since_s = 0.0
 
-    def _enter_hold(self, reason: str) -> None:
+    @property
+    def phase(self) -> str:
+        """``takeoff``, ``exploring``, ``returning``, ``home`` or ``done``."""
+        return self.state.phase
+
+    @property
+    def hold_reason(self) -> str | None:
+        """Why the daemon holds position now; None while it flies."""
+        return self._hold_reason
+
+    def exploration_s(self) -> float | None:
+        """How long it explored (so far); None before it started."""
+        if self._explore_start_s is None:
+            return None
+        return (self._explore_end_s or time.monotonic()) - self._explore_start_s
+
+    def enter_hold(self, reason: str, link_lost_in_control: bool = False) -> None:
+        """Hold position for ``reason`` (or go on holding); end the run after ``max_hold_s``; re-engage the
+        autopilot's external-control mode when it left it after ``link_lost_in_control``."""
         if self._hold_reason is None:
             log.warning("holding position: %s", reason)
             self._hold_since_s = time.monotonic()
-            self._feeder.clear()
-            self._hold_position()
-            self._holds.append({"t_s": self._hold_since_s - self._t0_s, "reason": reason, "duration_s": None})
+            self.feeder.clear()
+            self.hold_position()
+            self.record.hold_began(self._hold_since_s, reason)
         elif reason != self._hold_reason:
             log.warning("still holding position: %s", reason)
         self._hold_reason = reason
         if time.monotonic() - self._hold_since_s > self.config.max_hold_s:
-            self._stop_reason = f"held position for more than {self.config.max_hold_s:.0f} s ({reason})"
-        if self._link_lost_in_control and reason.startswith("autopilot in"):
+            self.state.stop_reason = f"held position for more than {self.config.max_hold_s:.0f} s ({reason})"
+        if link_lost_in_control and reason.startswith("autopilot in"):
             self._try_reengage()
 
-    def _leave_hold(self) -> None:
+    def leave_hold(self) -> None:
+        """The inputs are healthy again: resume (restarting the climb when it held during take-off). The next step
+        starts at rest where the vehicle is (the decision pipeline's :meth:`restart_at_rest`)."""
         held_s = time.monotonic() - self._hold_since_s
         log.info("inputs healthy again after %.1f s (%s): resuming", held_s, self._hold_reason)
-        self._holds[-1]["duration_s"] = held_s
+        self.record.hold_ended(held_s)
         self._hold_reason = None
-        self._previous_action = int(Action.HOVER)  # the step restarts at rest where the vehicle is
-        if self._phase == "takeoff":
-            self._climb()
+        if self.state.phase == "takeoff":
+            self.climb()
 
-    def _hold_position(self) -> None:
+    def hold_position(self) -> None:
         try:
             self.link.hold()
         except LinkError as exc:  # no odometry ever: the last target keeps streaming
@@ -81,7 +121,7 @@ class FlightPhases:
         """PX4 left OFFBOARD because our setpoints stopped reaching it: take control back (it streams a hold
         first). ArduPilot keeps GUIDED through a link loss, so if it left, its failsafe acted: end the run."""
         if self.config.autopilot != "px4":
-            self._stop_reason = "autopilot left GUIDED during the link loss (its failsafe acted)"
+            self.state.stop_reason = "autopilot left GUIDED during the link loss (its failsafe acted)"
             return
         log.info("re-engaging OFFBOARD after the link loss")
         try:
@@ -89,7 +129,8 @@ class FlightPhases:
         except LinkError as exc:
             log.warning("could not re-engage OFFBOARD yet: %s", exc)
 
-    def _take_off(self) -> None:
+    def take_off(self) -> float:
+        """Engage the autopilot, start the maps around home and climb; returns when the maps were started."""
         cfg = self.config
         self.link.wait_until(lambda s: s.connected and not s.odometry_stale, 15.0, "autopilot heartbeat and odometry")
         if cfg.autopilot == "px4":
@@ -98,30 +139,23 @@ class FlightPhases:
             self.link.start_guided(cfg.flight_height_m)
         pose = self.link.latest_pose()
         assert pose is not None
-        self._home_xy = (pose.x_m, pose.y_m)
-        if self._region is None:
-            z_min_m, z_max_m = band_z_range_m(self.config.band)
-            self._region = VoxelRegion((pose.x_m - 12.0, pose.y_m - 7.0, z_min_m), (24.0, 14.0, z_max_m - z_min_m))
-        self._new_maps()
-        self._last_fused_s = time.monotonic()
+        self.state.home_xy = (pose.x_m, pose.y_m)
+        self.maps.start(pose.x_m, pose.y_m, cfg.band)
+        maps_started_s = time.monotonic()
+        voxels, region = self.maps.voxels, self.maps.region
+        assert voxels is not None and region is not None
         log.info(
             "maps: %.1f × %.1f m at %.2f / %.2f m (%.0f MB); home (%.2f, %.2f)",
-            *self._region.size_xyz_m[:2],
-            self.maps.high.resolution_m,
-            self.maps.low.resolution_m,
-            (self.maps.high.log_odds.nbytes + self.maps.low.log_odds.nbytes) * 2 / 1e6,
-            *self._home_xy,
+            *region.size_xyz_m[:2],
+            voxels.high.resolution_m,
+            voxels.low.resolution_m,
+            (voxels.high.log_odds.nbytes + voxels.low.log_odds.nbytes) * 2 / 1e6,
+            *self.state.home_xy,
         )
-        self._climb()
+        self.climb()
+        return maps_started_s
 
-    def _new_maps(self) -> None:
-        """Empty voxel maps over the region, and no flown footprint."""
-        assert self._region is not None
-        self.maps = VoxelMaps(self._region, self.config.fusion)
-        self._flown_grid = self.maps.high.grid
-        self._flown = np.zeros(self._flown_grid.shape, dtype=np.uint8)
-
-    def _climb(self) -> None:
+    def climb(self) -> None:
         """Fly from the current pose to flight height above it (at the start, and after a hold during take-off)."""
         pose = self.link.latest_pose()
         assert pose is not None
@@ -129,51 +163,55 @@ class FlightPhases:
         start = TrajectoryState.at_rest(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad)
         end = TrajectoryState.at_rest(pose.x_m, pose.y_m, self.config.flight_height_m, pose.yaw_rad)
         duration_s = max(1.0, climb_m / self.config.takeoff_speed_mps)
-        self._feeder.follow(min_jerk_segment(start, end, duration_s), time.monotonic())
+        self.feeder.follow(min_jerk_segment(start, end, duration_s), time.monotonic())
         log.info("climbing from %.2f m to %.2f m in %.1f s", pose.z_m, self.config.flight_height_m, duration_s)
 
-    def _check_takeoff_done(self) -> None:
-        pose = self._last_pose
-        end_s = self._feeder.end_s
+    def check_takeoff_done(self, pose: Odometry | None, planner_name: str) -> None:
+        """Start exploring (with ``planner_name``) once the climb's segment ended at flight height (``pose``)."""
+        end_s = self.feeder.end_s
         if pose is None or end_s is None or time.monotonic() < end_s:
             return
         if abs(pose.z_m - self.config.flight_height_m) < 0.15:
-            self._phase = "exploring"
+            self.state.phase = "exploring"
             self._explore_start_s = time.monotonic()
-            log.info("at flight height: exploring with the %s planner", self.planner_name)
+            log.info("at flight height: exploring with the %s planner", planner_name)
 
-    def _finish_exploring(self, why: str) -> None:
-        self._ending = why
+    def finish_exploring(self, why: str) -> None:
+        self.state.ending = why
         self._explore_end_s = time.monotonic()
         log.info("exploration ended: %s", why)
-        self._phase = "returning" if self.config.return_home else "home"
-        if self._phase == "home":
+        self.state.phase = "returning" if self.config.return_home else "home"
+        if self.state.phase == "home":
             self._home_since_s = time.monotonic()
 
-    def _decision_due(self, now: float) -> bool:
-        if self._phase == "home":
+    def decision_due(self, now: float) -> bool:
+        """Whether to decide now: when the reference is about to reach its waypoint (never once home, where the
+        hover ends the flight after ``home_hover_s``)."""
+        if self.state.phase == "home":
             if self._home_since_s is not None and now - self._home_since_s >= self.config.home_hover_s:
-                self._phase = "done"
+                self.state.phase = "done"
             return False
-        end_s = self._feeder.end_s
+        end_s = self.feeder.end_s
         return end_s is None or now >= end_s - self.config.decision_lead_s
 
-    def _check_end_of_exploration(self, now: float) -> None:
+    def check_end_of_exploration(self, now: float, coverage: float | None) -> None:
+        """End exploration at the coverage goal (``coverage``: the latest, None without a plan) or the time limit."""
         assert self._explore_start_s is not None
-        if self._metrics is not None and self._metrics.coverage >= self.config.coverage_goal:
-            self._finish_exploring("coverage goal")
+        if coverage is not None and coverage >= self.config.coverage_goal:
+            self.finish_exploring("coverage goal")
         elif now - self._explore_start_s >= self.config.time_limit_s:
-            self._finish_exploring("time limit")
+            self.finish_exploring("time limit")
 
-    def _home_action(self, maps: ObservedMaps, pose: tuple[float, float, float]) -> int | None:
-        """The next action along a path home over observed free space; None (and hovering) once there."""
-        assert self._home_xy is not None and self._explore_end_s is not None
+    def home_action(self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int) -> int | None:
+        """The next action along a path home over observed free space (after action ``previous``); None (and
+        hovering) once there."""
+        assert self.state.home_xy is not None and self._explore_end_s is not None
         cfg = self.config
         free = FreeSpace.from_codes(maps.high, maps.high_grid)
-        path = path_home(free, pose[:2], self._home_xy, cfg.follow.safe_distance_m)
+        path = path_home(free, pose[:2], self.state.home_xy, cfg.follow.safe_distance_m)
         action = None
         if path is not None:
-            action = choose_action(self.table, pose, self._previous_action, path, free, cfg.follow)
+            action = choose_action(self.table, pose, previous, path, free, cfg.follow)
         arrived = path is not None and action is None
         timed_out = time.monotonic() - self._explore_end_s > cfg.return_time_limit_s
         if arrived or timed_out:
@@ -181,7 +219,7 @@ class FlightPhases:
                 log.warning("no way home within %.0f s: hovering here", cfg.return_time_limit_s)
             else:
                 log.info("home: hovering for %.0f s", cfg.home_hover_s)
-            self._phase = "home"
+            self.state.phase = "home"
             self._home_since_s = time.monotonic()
             return None
         return action

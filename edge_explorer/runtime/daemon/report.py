@@ -1,11 +1,10 @@
 """What a run measures and reports: the stage timings (:data:`STAGES`, :class:`StageTimings`, reused by the
 profiling report), the progress line (:class:`Progress`), the coverage against the plan (:class:`CoverageTruth`),
-the latest decision's maps (:class:`DecisionView`) and the run report (:class:`RunReport`), and the daemon's part
-that keeps their figures (:class:`RunRecord`: decisions, frames, holds, path, coverage timeline)."""
+the latest decision's maps (:class:`DecisionView`) and the run report (:class:`RunReport`). The daemon's part that
+keeps their figures is :class:`~edge_explorer.runtime.daemon.record.RunRecord`."""
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -15,9 +14,7 @@ from typing import Any
 import numpy as np
 
 from edge_explorer.mapping.metrics import MapMetrics, map_metrics
-from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import align_to_grid
-from edge_explorer.runtime.mavlink_link import Pose as Odometry
 from edge_explorer.world.flight_space import reachable_cells
 from edge_explorer.world.grid import LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
 from edge_explorer.world.raster import PlanRaster, block_reduce_max
@@ -166,88 +163,3 @@ class DecisionView:
     low: np.ndarray
     low_grid: GridSpec
     thresholded: np.ndarray | None  # observed ∪ thresholded prediction, when a predictor runs
-
-
-class RunRecord:
-    """The daemon's run record: counts (decisions and their waypoint sources, frames fused and dropped), holds,
-    the path and the coverage timeline; the progress line and the run report are built from it. Reads the daemon's
-    ``config``, ``timings``, ``truth``, phase and exploration times."""
-
-    def _init_record(self) -> None:
-        self._decisions = 0
-        self._sources: dict[str, int] = {}
-        self._frames_fused = 0
-        self._frames_dropped: dict[str, int] = {}
-        self._holds: list[dict[str, Any]] = []
-        self._metrics: MapMetrics | None = None
-        self._path: list[tuple[float, float]] = []
-        self._path_length_m = 0.0
-        self._path_at_goal_m: float | None = None
-        self._observed_coverage: float | None = None
-        self._timeline: list[tuple[float, float | None, float | None, float, float | None]] = []
-        self._source_cpu_s = 0.0
-        self.view: DecisionView | None = None
-
-    def _record_progress(
-        self, now: float, odometry: Odometry, maps: ObservedMaps, thresholded: np.ndarray | None
-    ) -> None:
-        """Coverage against the plan (if known) and the path, once per decision. Coverage is also measured on the
-        observed map alone, so a flight shows how much of its coverage the prediction added (issue #17)."""
-        xy = (odometry.x_m, odometry.y_m)
-        if self._path and self._phase in ("exploring", "returning"):
-            self._path_length_m += math.dist(self._path[-1], xy)
-        self._path.append(xy)
-        coverage = correct = None
-        if self.truth is not None:
-            with self.timings.timed("coverage"):
-                self._metrics = self.truth.metrics(maps.low, maps.low_grid, thresholded)
-                observed = self._metrics if thresholded is None else self.truth.metrics(maps.low, maps.low_grid, None)
-            coverage, correct = self._metrics.coverage, self._metrics.correct_coverage
-            self._observed_coverage = observed.coverage
-            if self._path_at_goal_m is None and coverage >= self.config.coverage_goal:
-                self._path_at_goal_m = self._path_length_m
-        self._timeline.append((now - self._t0_s, coverage, correct, self._path_length_m, self._observed_coverage))
-
-    def _progress(self, now: float) -> Progress:
-        decision = self.timings.stats().get("decision")
-        m = self._metrics
-        return Progress(
-            elapsed_s=now - self._t0_s,
-            phase=self._phase,
-            coverage=None if m is None else m.coverage,
-            correct_coverage=None if m is None else m.correct_coverage,
-            path_length_m=self._path_length_m,
-            decisions=self._decisions,
-            decision_p95_ms=None if decision is None else decision.p95_ms,
-            holding=self._hold_reason,
-        )
-
-    def _report(self, wall_s: float, cpu_s: float) -> RunReport:
-        m = self._metrics
-        exploration_s = None
-        if self._explore_start_s is not None:
-            exploration_s = (self._explore_end_s or time.monotonic()) - self._explore_start_s
-        return RunReport(
-            ending=self._ending or "not started",
-            planner=self.planner_name,
-            predictor=self.predictor is not None,
-            coverage=None if m is None else m.coverage,
-            correct_coverage=None if m is None else m.correct_coverage,
-            observed_coverage=self._observed_coverage,
-            f1=None if m is None else m.f1,
-            path_length_m=self._path_length_m,
-            path_at_goal_m=self._path_at_goal_m,
-            exploration_s=exploration_s,
-            returned_home=self._phase in ("home", "done") and self.config.return_home,
-            decisions=self._decisions,
-            waypoint_sources=dict(self._sources),
-            frames_fused=self._frames_fused,
-            frames_dropped=dict(self._frames_dropped),
-            holds=list(self._holds),
-            wall_s=wall_s,
-            process_cpu_s=cpu_s,
-            source_cpu_s=self._source_cpu_s,
-            stages=self.timings.stats(),
-            timeline=list(self._timeline),
-            path_xy_m=list(self._path),
-        )

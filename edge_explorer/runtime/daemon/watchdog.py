@@ -8,21 +8,27 @@ external-control mode (a pilot took over: the run ends; our own stream stalled o
 Every depth frame goes through :func:`frame_problem` (NaN/inf, no returns, wrong shape or dtype, a timestamp not
 after the last one) and the odometry lookup at its timestamp before it is fused; a dropped frame is counted per
 reason and logged at most every few seconds (:class:`_ThrottledLog`). The flown footprint (see the package
-docstring, "Flown space is free") is stamped here too."""
+docstring, "Flown space is free") is stamped here too.
+
+The watchdog does not act on a pose jump beyond its own settling: it says so (:attr:`InputCheck.jump_xy_m`), and
+the daemon starts the maps and the goal planner afresh and moves home."""
 
 from __future__ import annotations
 
 import logging
 import math
 import time
+from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from edge_explorer.mapping.voxels import FusionInputError
-from edge_explorer.runtime.daemon.config import AUTOPILOT_MODES, STALL_BLAME_S
-from edge_explorer.runtime.depth_sources import DepthFrame
-from edge_explorer.runtime.mavlink_link import LinkStatus
+from edge_explorer.runtime.daemon.config import AUTOPILOT_MODES, STALL_BLAME_S, DaemonConfig
+from edge_explorer.runtime.daemon.record import RunRecord
+from edge_explorer.runtime.daemon.report import StageTimings
+from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
+from edge_explorer.runtime.depth_sources import DepthFrame, Recorder
+from edge_explorer.runtime.mavlink_link import LinkStatus, MavlinkLink
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
 from edge_explorer.sim.camera import CameraPose
 
@@ -68,12 +74,43 @@ class _ThrottledLog:
             self._last[kind] = (logged_at, since + 1)
 
 
-class InputWatchdog:
-    """The daemon's input checks and frame ingestion (see the module docstring). Owns the last odometry pose, the
-    jump-settling deadline, the last fused frame's stamp and time and the link-lost flag; reads the daemon's
-    ``link``, ``config``, ``table``, ``maps`` and ``recorder``."""
+@dataclass(frozen=True)
+class InputCheck:
+    """One iteration's verdict on the inputs: why the daemon must hold now (None when every input is healthy), and
+    the map frame's shift (dx, dy) when odometry just jumped (the maps, the goal planner and home must follow)."""
 
-    def _init_watchdog(self) -> None:
+    hold_reason: str | None
+    jump_xy_m: tuple[float, float] | None = None
+
+
+class InputWatchdog:
+    """The daemon's input checks and frame ingestion (see the module docstring).
+
+    Inputs: ``config``; ``link`` (its status, odometry and pose lookup); ``speed_max_m_s``, the fastest the vehicle
+    flies (a pose change beyond it is a jump); ``timings`` (stage "mavlink_io" and "fuse"); ``maps``, fused into;
+    ``state``, whose stop reason it sets when a pilot takes over; ``record``, told about every frame fused or dropped;
+    ``recorder``, which keeps every fused frame with its pose. Owns the last odometry pose, the jump-settling
+    deadline, the last fused frame's stamp and time and the link-lost flag."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        link: MavlinkLink,
+        speed_max_m_s: float,
+        timings: StageTimings,
+        maps: FlightMaps,
+        state: FlightState,
+        record: RunRecord,
+        recorder: Recorder | None = None,
+    ) -> None:
+        self.config = config
+        self.link = link
+        self.speed_max_m_s = speed_max_m_s
+        self.timings = timings
+        self.maps = maps
+        self.state = state
+        self.record = record
+        self.recorder = recorder
         self._throttled = _ThrottledLog()
         self._link_lost_in_control = False  # the link was lost since the autopilot was last seen in OFFBOARD
         self._last_pose: Odometry | None = None
@@ -81,22 +118,46 @@ class InputWatchdog:
         self._last_frame_stamp_s: float | None = None
         self._last_fused_s = math.inf  # set at take-off: the first frame has depth_timeout_s to arrive
 
-    def _check_inputs(self, now: float) -> str | None:
-        """Why the daemon must hold position now (None when every input is healthy)."""
+    @property
+    def last_pose(self) -> Odometry | None:
+        """The odometry pose of the latest healthy check."""
+        return self._last_pose
+
+    @property
+    def link_lost_in_control(self) -> bool:
+        """The link was lost (or our setpoint stream stalled) since the autopilot was last seen in control: a mode
+        change since is the autopilot's failsafe, and the daemon may re-engage."""
+        return self._link_lost_in_control
+
+    def frames_due_from(self, t_s: float) -> None:
+        """The maps exist from ``t_s`` on: the first frame has ``depth_timeout_s`` from then to arrive."""
+        self._last_fused_s = t_s
+
+    def blind(self, now: float) -> str | None:
+        """Why the daemon must hold for want of depth (no frame fused for ``depth_timeout_s``), or None."""
+        if now - self._last_fused_s > self.config.depth_timeout_s:
+            return f"no usable depth frame for more than {self.config.depth_timeout_s:.1f} s"
+        return None
+
+    def check(self, now: float) -> InputCheck:
+        """Whether the daemon may fly on its inputs now (see :class:`InputCheck`)."""
         cfg = self.config
         with self.timings.timed("mavlink_io"):
             status = self.link.status()
             pose = self.link.latest_pose()
         if not status.connected:
             self._link_lost_in_control = True
-            return f"MAVLink link lost (no autopilot heartbeat for {self.link.config.link_lost_after_s:.1f} s)"
+            return InputCheck(
+                f"MAVLink link lost (no autopilot heartbeat for {self.link.config.link_lost_after_s:.1f} s)"
+            )
         if status.odometry_age_s is None or status.odometry_age_s > cfg.odometry_max_age_s or pose is None:
-            return f"odometry stale (none for more than {cfg.odometry_max_age_s:.1f} s)"
+            return InputCheck(f"odometry stale (none for more than {cfg.odometry_max_age_s:.1f} s)")
         previous, self._last_pose = self._last_pose, pose
+        jump_xy_m = None
         if previous is not None:
             dt = max(pose.stamp_s - previous.stamp_s, 0.0)
             jump = math.dist((pose.x_m, pose.y_m, pose.z_m), (previous.x_m, previous.y_m, previous.z_m))
-            if jump > cfg.pose_jump_m + self.table.model.speed_max_m_s * dt:
+            if jump > cfg.pose_jump_m + self.speed_max_m_s * dt:
                 self._jump_until_s = now + cfg.jump_settle_s
                 log.warning(
                     "odometry jumped %.2f m in %.2f s: the maps are in the old frame, starting new ones; frames are "
@@ -105,16 +166,12 @@ class InputWatchdog:
                     dt,
                     cfg.jump_settle_s,
                 )
-                self._new_maps()
-                self.frontier.reset()  # its goals are in the old frame too
-                if self._home_xy is not None:
-                    hx, hy = self._home_xy
-                    self._home_xy = (hx + pose.x_m - previous.x_m, hy + pose.y_m - previous.y_m)
+                jump_xy_m = (pose.x_m - previous.x_m, pose.y_m - previous.y_m)
         if now < self._jump_until_s:
-            return "settling after an odometry jump"
-        return self._mode_problem(status)
+            return InputCheck("settling after an odometry jump", jump_xy_m)
+        return InputCheck(self.mode_problem(status), jump_xy_m)
 
-    def _mode_problem(self, status: LinkStatus) -> str | None:
+    def mode_problem(self, status: LinkStatus) -> str | None:
         """Hold while the autopilot is not in the external-control mode; end the run if a pilot took over.
 
         The autopilot also leaves it on its own when our setpoint stream stops (PX4's offboard-loss failsafe): after
@@ -134,10 +191,11 @@ class InputWatchdog:
             )
         if self._link_lost_in_control:
             return f"autopilot in {status.mode or 'unknown mode'} after the link loss: re-engaging {wanted}"
-        self._stop_reason = f"pilot took over (autopilot left {wanted} for {status.mode or 'an unknown mode'})"
-        return self._stop_reason
+        self.state.stop_reason = f"pilot took over (autopilot left {wanted} for {status.mode or 'an unknown mode'})"
+        return self.state.stop_reason
 
-    def _ingest(self, frame: DepthFrame) -> None:
+    def ingest(self, frame: DepthFrame) -> None:
+        """Check ``frame`` and fuse it at its pose, or drop it (counted per reason, logged at most every 5 s)."""
         problem = frame_problem(frame, self._last_frame_stamp_s)
         if problem is None and time.monotonic() < self._jump_until_s:
             problem = "odometry jump settling"
@@ -150,11 +208,12 @@ class InputWatchdog:
         if problem is not None:
             self._drop(problem)
             return
-        assert pose is not None and self.maps is not None
+        voxels = self.maps.voxels
+        assert pose is not None and voxels is not None
         camera = CameraPose(pose.x_m, pose.y_m, pose.z_m, pose.yaw_rad, pose.pitch_rad, pose.roll_rad)
         start = time.perf_counter()
         try:
-            self.maps.fuse(
+            voxels.fuse(
                 frame.depth_m, frame.intrinsics, camera.position_m, camera.rotation_map_from_optical(), frame.stamp_s
             )
         except FusionInputError as exc:
@@ -163,19 +222,12 @@ class InputWatchdog:
         self.timings.add("fuse", time.perf_counter() - start)
         self._last_frame_stamp_s = frame.stamp_s
         self._last_fused_s = time.monotonic()
-        self._frames_fused += 1
-        self._mark_flown(pose)
+        self.record.frame_fused()
+        if pose.z_m >= self.config.band.min_z_m:  # the footprint is stamped once the vehicle flies at band height
+            self.maps.mark_flown(pose.x_m, pose.y_m, self.config.footprint_clear_m)
         if self.recorder is not None:
             self.recorder.write(frame, pose)
 
-    def _mark_flown(self, pose: Odometry) -> None:
-        """Stamp the vehicle's footprint (see the module docstring) once it flies at band height."""
-        radius_cells = int(self.config.footprint_clear_m / self._flown_grid.resolution_m)
-        if radius_cells <= 0 or pose.z_m < self.config.band.min_z_m:
-            return
-        row, col = self._flown_grid.cell_of(pose.x_m, pose.y_m)
-        cv2.circle(self._flown, (int(col), int(row)), radius_cells, 1, thickness=-1)
-
     def _drop(self, reason: str) -> None:
-        self._frames_dropped[reason] = self._frames_dropped.get(reason, 0) + 1
+        self.record.frame_dropped(reason)
         self._throttled.warn(reason, f"depth frame dropped: {reason}")

@@ -1,0 +1,388 @@
+"""The daemon's parts, each built alone from tiny inputs: no vehicle, no UDP, no flight (tests/runtime/test_daemon.py
+flies them together). A fake link answers the status and odometry a test sets; a fake clock stands in for
+``time.monotonic`` where a part measures how long something lasted."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.mapping.voxels import VoxelRegion
+from edge_explorer.plan.registry import build_planner
+from edge_explorer.runtime.daemon import (
+    DaemonConfig,
+    DecisionPipeline,
+    FlightMaps,
+    FlightPhases,
+    FlightState,
+    InputCheck,
+    InputWatchdog,
+    RunRecord,
+    SetpointFeeder,
+    StageTimings,
+)
+from edge_explorer.runtime.daemon import decisions as decisions_module
+from edge_explorer.runtime.daemon import phases as phases_module
+from edge_explorer.runtime.depth_sources import DepthFrame
+from edge_explorer.runtime.mavlink_link import LinkError, LinkStatus, Pose
+from edge_explorer.sim.camera import DepthIntrinsics
+from edge_explorer.sim.dynamics import Action, load_action_table
+from edge_explorer.world.grid import FREE, GridSpec
+
+CONFIG = DaemonConfig(max_hold_s=5.0, home_hover_s=2.0, return_home=False)
+HEALTHY = LinkStatus(True, False, False, True, "OFFBOARD", 0.1, 0.01, 0, 0, 0, 0, 0)
+
+
+class FakeLink:
+    """What the parts ask of a :class:`~edge_explorer.runtime.mavlink_link.MavlinkLink`, answered from fields."""
+
+    def __init__(self, pose: Pose | None = None, status: LinkStatus = HEALTHY) -> None:
+        self.config = SimpleNamespace(link_lost_after_s=1.5)
+        self.status_now = status
+        self.pose = pose
+        self.holds = 0
+        self.offboard_starts = 0
+
+    def status(self) -> LinkStatus:
+        return self.status_now
+
+    def latest_pose(self) -> Pose | None:
+        return self.pose
+
+    def pose_at(self, stamp_s: float) -> Pose | None:
+        return None if self.pose is None else replace(self.pose, stamp_s=stamp_s)
+
+    def hold(self) -> None:
+        if self.pose is None:
+            raise LinkError("no odometry yet")
+        self.holds += 1
+
+    def start_offboard(self, warmup_s: float, timeout_s: float = 5.0) -> None:
+        self.offboard_starts += 1
+
+    def set_target(self, x: float, y: float, z: float, yaw: float) -> None:
+        pass
+
+
+class FakeClock:
+    """``time.monotonic`` at ``now`` (the rest of the ``time`` module as it is): a module's ``time`` for the length
+    of a test."""
+
+    def __init__(self, now: float = 100.0) -> None:
+        self.now = now
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(time, name)
+
+
+@pytest.fixture
+def clock(monkeypatch) -> FakeClock:
+    fake = FakeClock()
+    monkeypatch.setattr(phases_module, "time", fake)
+    monkeypatch.setattr(decisions_module, "time", fake)
+    return fake
+
+
+def _record(coverage_goal: float = 0.95) -> RunRecord:
+    return RunRecord(coverage_goal, StageTimings())
+
+
+def _watchdog(link: FakeLink, config: DaemonConfig = CONFIG) -> tuple[InputWatchdog, FlightState, RunRecord]:
+    state, record = FlightState(), _record()
+    maps = FlightMaps(config.fusion)
+    watchdog = InputWatchdog(config, link, 1.0, StageTimings(), maps, state, record)  # type: ignore[arg-type]
+    return watchdog, state, record
+
+
+def _phases(link: FakeLink, config: DaemonConfig = CONFIG) -> tuple[FlightPhases, FlightState, RunRecord]:
+    state, record = FlightState(), _record()
+    feeder = SetpointFeeder(link, config.setpoint_rate_hz, StageTimings())  # type: ignore[arg-type]  # not started
+    phases = FlightPhases(config, link, load_action_table(), feeder, state, FlightMaps(config.fusion), record)  # type: ignore[arg-type]
+    return phases, state, record
+
+
+# ---- the input watchdog ------------------------------------------------------------------------------------------
+
+
+def test_the_watchdog_holds_on_stale_or_missing_odometry():
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.2, 0.0))
+    watchdog, _, _ = _watchdog(link)
+    assert watchdog.check(10.0).hold_reason is None
+    link.status_now = replace(HEALTHY, odometry_age_s=0.5)  # older than odometry_max_age_s (0.3 s)
+    assert watchdog.check(10.5).hold_reason == "odometry stale (none for more than 0.3 s)"
+    link.status_now = replace(HEALTHY, odometry_age_s=None)
+    assert watchdog.check(10.6).hold_reason == "odometry stale (none for more than 0.3 s)"
+    link.status_now, link.pose = HEALTHY, None
+    assert watchdog.check(10.7).hold_reason == "odometry stale (none for more than 0.3 s)"
+
+
+def test_the_watchdog_reports_a_pose_jump_and_holds_while_it_settles():
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.2, 0.0))
+    watchdog, _, _ = _watchdog(link)
+    assert watchdog.check(50.0) == InputCheck(None)
+    link.pose = Pose(10.1, 1.1, 1.0, 1.2, 0.0)  # 0.1 m in 0.1 s: flown, not a jump
+    assert watchdog.check(50.1).jump_xy_m is None
+    link.pose = Pose(10.2, 4.1, 2.0, 1.2, 0.0)  # 3.2 m in 0.1 s: a VIO reset
+    check = watchdog.check(50.2)
+    assert check.hold_reason == "settling after an odometry jump"
+    assert check.jump_xy_m == pytest.approx((3.0, 1.0))
+    assert watchdog.check(50.9) == InputCheck("settling after an odometry jump")  # jump_settle_s = 1 s, no new jump
+    assert watchdog.check(51.3).hold_reason is None and watchdog.last_pose == link.pose
+
+
+def test_the_watchdog_tells_a_link_loss_from_a_pilot_taking_over():
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.2, 0.0), replace(HEALTHY, connected=False))
+    watchdog, state, _ = _watchdog(link)
+    assert watchdog.check(1.0).hold_reason == "MAVLink link lost (no autopilot heartbeat for 1.5 s)"
+    assert watchdog.link_lost_in_control
+    loiter = replace(HEALTHY, mode="AUTO.LOITER")
+    link.status_now = loiter  # the autopilot's offboard-loss failsafe during the loss: take control back
+    assert watchdog.check(2.0).hold_reason == "autopilot in AUTO.LOITER after the link loss: re-engaging OFFBOARD"
+    assert state.stop_reason is None
+    link.status_now = HEALTHY
+    assert watchdog.check(3.0).hold_reason is None and not watchdog.link_lost_in_control
+    link.status_now = loiter  # now with the link healthy all along: a pilot
+    reason = watchdog.check(4.0).hold_reason
+    assert reason == state.stop_reason == "pilot took over (autopilot left OFFBOARD for AUTO.LOITER)"
+
+
+def test_the_watchdog_drops_bad_frames_and_counts_them_per_reason():
+    k = DepthIntrinsics.d435()
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.2, 0.0))
+    watchdog, _, record = _watchdog(link)
+    nan = np.full(k.shape, 2.0, np.float32)
+    nan[3, 4] = np.nan
+    watchdog.ingest(DepthFrame(nan, 10.0, k))
+    watchdog.ingest(DepthFrame(np.zeros(k.shape, np.float32), 10.1, k))
+    watchdog.ingest(DepthFrame(np.zeros(k.shape, np.float32), 10.2, k))
+    watchdog.ingest(DepthFrame(np.full(k.shape, 2.0, np.float32)[:-1], 10.3, k))
+    link.pose = None  # a good frame without odometry at its time
+    watchdog.ingest(DepthFrame(np.full(k.shape, 2.0, np.float32), 10.4, k))
+    assert record.frames_fused == 0
+    assert record.frames_dropped == {
+        "NaN or inf depth": 1,
+        "no returns (all zero)": 2,
+        "wrong shape": 1,
+        "no odometry at the frame's time": 1,
+    }
+
+
+def test_the_watchdog_fuses_a_good_frame_and_stamps_the_flown_footprint():
+    k = DepthIntrinsics.d435()
+    link = FakeLink(Pose(10.0, 2.0, 1.5, CONFIG.flight_height_m, 0.0))  # at band height: the footprint counts
+    watchdog, _, record = _watchdog(link)
+    watchdog.maps.region = VoxelRegion.covering(GridSpec((0.0, 0.0), 0.05, (80, 80)), 0.0, 2.6)
+    watchdog.maps.reset()
+    watchdog.ingest(DepthFrame(np.full(k.shape, 1.5, np.float32), 10.0, k))
+    assert record.frames_fused == 1 and record.frames_dropped == {}
+    flown, grid = watchdog.maps.flown, watchdog.maps.flown_grid
+    assert flown is not None and grid is not None and flown[grid.cell_of(2.0, 1.5)] == 1
+    assert int(flown.sum()) < 60  # a 0.2 m disc of 0.05 m cells, nothing more
+    watchdog.ingest(DepthFrame(np.full(k.shape, 1.5, np.float32), 10.0, k))  # the same stamp again
+    assert record.frames_dropped == {"timestamp not after the last frame": 1}
+
+
+def test_the_watchdog_says_the_daemon_is_blind_without_a_fused_frame():
+    watchdog, _, _ = _watchdog(FakeLink())
+    watchdog.frames_due_from(20.0)
+    assert watchdog.blind(20.9) is None
+    assert watchdog.blind(21.1) == "no usable depth frame for more than 1.0 s"
+
+
+# ---- the run record ----------------------------------------------------------------------------------------------
+
+
+def test_the_run_record_sums_decisions_frames_holds_path_and_stages():
+    record = _record()
+    record.start(100.0)
+    record.frame_fused()
+    record.frame_fused()
+    record.frame_dropped("NaN or inf depth")
+    record.hold_began(103.0, "odometry stale")
+    record.hold_ended(1.5)
+    for source in ("frontier", "frontier", "hover"):
+        record.decision(source)
+    maps = ObservedMaps.empty(GridSpec((0.0, 0.0), 0.05, (40, 40)))
+    record.record_progress(101.0, Pose(101.0, 0.0, 0.0, 1.0, 0.0), maps, None, "takeoff")  # climbing: no path
+    record.record_progress(102.0, Pose(102.0, 3.0, 4.0, 1.0, 0.0), maps, None, "takeoff")
+    record.record_progress(103.0, Pose(103.0, 6.0, 8.0, 1.0, 0.0), maps, None, "exploring")
+    record.record_progress(104.0, Pose(104.0, 6.0, 9.0, 1.0, 0.0), maps, None, "returning")
+    for seconds in (0.010, 0.030):
+        record.timings.add("decision", seconds)
+    report = record.report(
+        10.0, 2.0, ending="time limit", planner="frontier", predictor=False, exploration_s=5.0, returned_home=False
+    )
+    assert (report.decisions, report.waypoint_sources) == (3, {"frontier": 2, "hover": 1})
+    assert (report.frames_fused, report.frames_dropped) == (2, {"NaN or inf depth": 1})
+    assert report.holds == [{"t_s": 3.0, "reason": "odometry stale", "duration_s": 1.5}]
+    assert report.path_length_m == pytest.approx(6.0) and len(report.path_xy_m) == 4
+    assert [t for t, *_ in report.timeline] == [1.0, 2.0, 3.0, 4.0] and report.coverage is None
+    assert report.stages["decision"].count == 2 and report.stages["decision"].mean_ms == pytest.approx(20.0)
+    assert set(report.stages) == {"decision"}
+    progress = record.progress(105.0, "returning", None)
+    assert (progress.elapsed_s, progress.decisions, progress.path_length_m) == (5.0, 3, pytest.approx(6.0))
+    assert progress.decision_p95_ms == pytest.approx(29.0)
+
+
+# ---- the flight phases -------------------------------------------------------------------------------------------
+
+
+def test_the_phases_enter_and_leave_a_hold(clock):
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.2, 0.0))
+    phases, state, record = _phases(link)
+    record.start(90.0)
+    phases.enter_hold("odometry stale (none for more than 0.3 s)")
+    assert link.holds == 1 and phases.hold_reason.startswith("odometry stale") and phases.feeder.end_s is None
+    clock.now = 101.0
+    phases.enter_hold("odometry stale (none for more than 0.3 s)")
+    phases.enter_hold("no usable depth frame for more than 1.0 s")  # still the same hold, for another reason
+    assert link.holds == 1 and phases.hold_reason == "no usable depth frame for more than 1.0 s"
+    clock.now = 102.5
+    phases.leave_hold()
+    assert phases.hold_reason is None and state.stop_reason is None
+    assert record.holds == [{"t_s": 10.0, "reason": "odometry stale (none for more than 0.3 s)", "duration_s": 2.5}]
+
+
+def test_a_hold_that_lasts_ends_the_flight_and_a_link_loss_re_engages(clock):
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.2, 0.0))
+    phases, state, _ = _phases(link)
+    reason = "autopilot in AUTO.LOITER after the link loss: re-engaging OFFBOARD"
+    phases.enter_hold(reason, link_lost_in_control=True)
+    assert link.offboard_starts == 1 and state.stop_reason is None
+    clock.now += 5.5  # max_hold_s = 5
+    phases.enter_hold(reason, link_lost_in_control=True)
+    assert state.stop_reason == f"held position for more than 5 s ({reason})"
+    ardupilot, ardupilot_state, _ = _phases(link, replace(CONFIG, autopilot="ardupilot"))
+    ardupilot.enter_hold(reason.replace("OFFBOARD", "GUIDED"), link_lost_in_control=True)
+    assert ardupilot_state.stop_reason == "autopilot left GUIDED during the link loss (its failsafe acted)"
+    assert link.offboard_starts == 2
+
+
+def test_the_phases_climb_explore_end_and_hover_home(clock):
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 0.5, 0.0))
+    phases, state, _ = _phases(link)
+    phases.climb()  # 0.5 m → 1.7 m at 0.5 m/s: 2.4 s
+    assert phases.feeder.end_s == pytest.approx(100.0 + (CONFIG.flight_height_m - 0.5) / CONFIG.takeoff_speed_mps)
+    at_height = replace(link.pose, z_m=CONFIG.flight_height_m)
+    phases.check_takeoff_done(at_height, "frontier")
+    assert state.phase == "takeoff"  # the climb's segment has not ended yet
+    clock.now = 102.5
+    phases.check_takeoff_done(replace(at_height, z_m=0.9), "frontier")
+    assert state.phase == "takeoff"  # not at height
+    phases.check_takeoff_done(at_height, "frontier")
+    assert state.phase == "exploring"
+    clock.now = 110.0
+    phases.check_end_of_exploration(110.0, 0.5)
+    assert state.phase == "exploring" and phases.exploration_s() == pytest.approx(7.5)
+    phases.check_end_of_exploration(110.0, 0.96)
+    assert (state.phase, state.ending) == ("home", "coverage goal")  # return_home is off: hover where it is
+    assert not phases.decision_due(111.0) and state.phase == "home"
+    assert not phases.decision_due(112.0) and state.phase == "done"  # home_hover_s = 2
+
+
+def test_without_a_coverage_the_time_limit_ends_exploration_and_the_vehicle_returns(clock):
+    phases, state, _ = _phases(
+        FakeLink(Pose(10.0, 1.0, 1.0, 1.5, 0.0)), replace(CONFIG, return_home=True, time_limit_s=30.0)
+    )
+    phases.climb()
+    clock.now += 5.0
+    phases.check_takeoff_done(Pose(10.0, 1.0, 1.0, CONFIG.flight_height_m, 0.0), "frontier")
+    phases.check_end_of_exploration(clock.now + 29.0, None)
+    assert state.phase == "exploring"
+    phases.check_end_of_exploration(clock.now + 30.0, None)
+    assert (state.phase, state.ending) == ("returning", "time limit")
+
+
+# ---- the decision pipeline ---------------------------------------------------------------------------------------
+
+
+class FailingPlanner:
+    """A goal planner whose model fails: what a learned goal policy's planner does when its policy raises."""
+
+    def act(self, *args, **kwargs):
+        raise RuntimeError("the model answered NaN")
+
+    def reset(self) -> None:
+        pass
+
+
+def _pipeline(config: DaemonConfig = CONFIG, policy=None) -> DecisionPipeline:
+    link = FakeLink(Pose(10.0, 1.0, 1.0, 1.5, 0.0))
+    phases, _, record = _phases(link, config)
+    timings = record.timings  # one run, one set of stage timings
+    return DecisionPipeline(
+        config,
+        link,
+        load_action_table(),
+        timings,
+        phases.feeder,
+        phases.maps,
+        phases,
+        record,
+        policy,  # type: ignore[arg-type]
+    )
+
+
+def _open_room() -> tuple[ObservedMaps, tuple[float, float, float]]:
+    """A 4 m × 3 m room seen free in a 6 m × 5 m unknown map, the vehicle in it facing east."""
+    maps = ObservedMaps.empty(GridSpec((0.0, 0.0), 0.05, (100, 120)))
+    maps.apply_patch(20, 20, np.full((60, 80), FREE, dtype=np.int8))
+    return maps, (2.0, 2.5, 0.0)
+
+
+def test_a_failing_goal_policy_hands_over_to_the_frontier_planner(caplog):
+    pipeline = _pipeline(policy=object())  # a policy is loaded; its planner fails
+    assert pipeline.planner_name == "drl"
+    pipeline.planner = FailingPlanner()
+    maps, pose = _open_room()
+    with caplog.at_level(logging.ERROR, logger="edge_explorer.runtime.daemon"):
+        action = pipeline.planner_action(maps, pose, int(Action.HOVER), None)
+    assert pipeline.policy is None and pipeline.planner_name == "frontier"
+    assert type(pipeline.planner) is type(build_planner("frontier"))
+    assert action is not None and action != Action.HOVER  # the frontier planner flies towards the room's rim
+    assert any("the goal policy failed (RuntimeError: the model answered NaN)" in m for m in caplog.messages)
+
+
+def test_a_frontier_planner_that_fails_is_no_policy_to_hand_over_from():
+    pipeline = _pipeline()
+    pipeline.planner = FailingPlanner()
+    with pytest.raises(RuntimeError, match="answered NaN"):
+        pipeline.planner_action(*_open_room(), int(Action.HOVER), None)
+
+
+def test_after_a_hold_the_next_step_starts_at_rest():
+    pipeline = _pipeline()
+    pipeline._previous_action = int(Action.FORWARD)
+    pipeline.restart_at_rest()
+    assert pipeline.previous_action == Action.HOVER
+
+
+def test_decisions_explore_until_the_time_limit_then_hold(clock):
+    """The whole pipeline alone, on a map that saw nothing yet: the frontier planner's waypoint while exploring;
+    at the time limit exploration ends and, return_home off, the waypoint is a hold. Every decision is recorded."""
+    pipeline = _pipeline()
+    phases, maps, record = pipeline.phases, pipeline.maps, pipeline.record
+    maps.region = VoxelRegion.covering(GridSpec((0.0, 0.0), 0.05, (80, 80)), 0.0, 2.6)
+    maps.reset()
+    phases.climb()
+    clock.now += 5.0
+    phases.check_takeoff_done(replace(pipeline.link.pose, z_m=CONFIG.flight_height_m), pipeline.planner_name)
+    assert phases.phase == "exploring"
+    pipeline.decide(clock.now, time.thread_time())
+    assert phases.phase == "exploring" and (record.decisions, record.sources) == (1, {"frontier": 1})
+    assert pipeline.view is not None and pipeline.view.high.shape == (80, 80) and pipeline.view.thresholded is None
+    assert {"project", "planner", "waypoint_trajectory", "decision", "decision_cpu"} <= set(record.timings.stats())
+    clock.now += CONFIG.time_limit_s
+    pipeline.decide(clock.now, time.thread_time())
+    assert (phases.phase, phases.state.ending) == ("home", "time limit")
+    assert record.sources == {"frontier": 1, "hold": 1} and len(record.path) == 2
+    assert pipeline.previous_action == Action.HOVER and pipeline.feeder.end_s is not None
