@@ -503,7 +503,7 @@ def test_ten_thousand_bad_datagrams_on_the_daemons_port(raster, camera, tmp_path
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             for raw in datagrams:
                 s.sendto(raw, ("127.0.0.1", port))
-        sent["t_s"] = time.monotonic() - daemon._t0_s
+        sent["t_s"] = time.monotonic() - daemon.record.t0_s
 
     flight = fly(raster, camera, tmp_path, replace(CONFIG, time_limit_s=5.0), during=flood)
     assert flight.link.datagrams_bad > 1000  # the rest were lost in the socket buffer: also fine
@@ -535,20 +535,20 @@ def test_the_autopilot_leaving_offboard_after_our_stream_stalled_is_no_pilot_tak
     daemon = Daemon(CONFIG, link, source=None)  # type: ignore[arg-type]
     loiter = LinkStatus(True, False, False, True, "AUTO.LOITER", 0.1, 0.01, 500, 900, 0, 0, 0)
     stalled = replace(loiter, setpoint_stall=(time.monotonic() - 0.5, 0.8))
-    reason = daemon._mode_problem(stalled)
+    reason = daemon.watchdog.mode_problem(stalled)
     assert reason == "autopilot in AUTO.LOITER after our setpoint stream stalled for 0.8 s: re-engaging OFFBOARD"
-    assert daemon._mode_problem(replace(loiter, mode="OFFBOARD")) is None  # back in control
+    assert daemon.watchdog.mode_problem(replace(loiter, mode="OFFBOARD")) is None  # back in control
     long_ago = replace(loiter, setpoint_stall=(time.monotonic() - 60.0, 0.8))
-    assert daemon._mode_problem(long_ago).startswith("pilot took over")
+    assert daemon.watchdog.mode_problem(long_ago).startswith("pilot took over")
 
 
 def test_dropped_frontier_targets_get_one_more_chance_before_explored(raster):
     daemon = Daemon(CONFIG, MavlinkLink(LinkConfig(connect="udpout:127.0.0.1:9")), source=None)  # type: ignore[arg-type]
     maps = ObservedMaps.empty(raster.grid)
-    assert not daemon._retry_frontiers(maps)  # nothing observed: no frontier, nothing to retry
+    assert not daemon.decisions.retry_frontiers(maps)  # nothing observed: no frontier, nothing to retry
     maps.apply_patch(10, 10, np.full((20, 20), FREE, dtype=np.int8))  # a seen patch: its rim is frontier
-    assert daemon._retry_frontiers(maps)  # once (CONFIG.frontier_retries = 1) …
-    assert not daemon._retry_frontiers(maps)  # … then the planner's "nothing left" ends exploration
+    assert daemon.decisions.retry_frontiers(maps)  # once (CONFIG.frontier_retries = 1) …
+    assert not daemon.decisions.retry_frontiers(maps)  # … then the planner's "nothing left" ends exploration
 
 
 def test_a_predictor_failing_in_flight_is_dropped_not_fatal(raster, tmp_path, caplog):
@@ -560,8 +560,8 @@ def test_a_predictor_failing_in_flight_is_dropped_not_fatal(raster, tmp_path, ca
     daemon = Daemon(CONFIG, link, source=None, predictor=predictor)  # type: ignore[arg-type]
     maps = ObservedMaps.empty(raster.grid)
     with caplog.at_level(logging.ERROR, logger="edge_explorer.runtime.daemon"):
-        assert daemon._predict(maps, (5, 5)) is None
-    assert daemon.predictor is None and daemon._predict(maps, (5, 5)) is None
+        assert daemon.decisions.predict(maps, (5, 5)) is None
+    assert daemon.predictor is None and daemon.decisions.predict(maps, (5, 5)) is None
     assert any("the predictor failed" in m and "flying on without it" in m for m in caplog.messages)
 
 

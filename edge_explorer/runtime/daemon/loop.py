@@ -14,9 +14,6 @@ import logging
 import time
 from collections.abc import Callable
 
-import numpy as np
-
-from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.plan.frontier import GoalPlanner
 from edge_explorer.plan.policy import PolicyRuntime
@@ -30,7 +27,7 @@ from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
 from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
 from edge_explorer.runtime.daemon.watchdog import InputWatchdog
 from edge_explorer.runtime.depth_sources import DepthSource, Recorder
-from edge_explorer.runtime.mavlink_link import LinkStatus, MavlinkLink
+from edge_explorer.runtime.mavlink_link import MavlinkLink
 from edge_explorer.sim.dynamics import ActionTable, load_action_table
 
 log = logging.getLogger(__name__)
@@ -208,18 +205,3 @@ class Daemon:
 
     def _progress(self, now: float) -> Progress:
         return self.record.progress(now, self.state.phase, self.phases.hold_reason)
-
-    # ---- the parts' internals, as the daemon's tests reach them -------------------------------------------------
-
-    @property
-    def _t0_s(self) -> float:
-        return self.record.t0_s
-
-    def _mode_problem(self, status: LinkStatus) -> str | None:
-        return self.watchdog.mode_problem(status)
-
-    def _retry_frontiers(self, maps: ObservedMaps) -> bool:
-        return self.decisions.retry_frontiers(maps)
-
-    def _predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
-        return self.decisions.predict(maps, low_cell)
