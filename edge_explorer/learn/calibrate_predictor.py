@@ -152,7 +152,7 @@ def _fmt(precision: float | None) -> str:
 
 def calibrate_cli(args: argparse.Namespace) -> int:
     """``edge-explorer train calibrate-predictor``: 0 when the card was written, 1 when no pair met the target."""
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     card_path = args.model / CARD_FILE
     predictor = PredictorRuntime(load_model(card_path))  # as the daemon runs it: the backend chain, int8 first

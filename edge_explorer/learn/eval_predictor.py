@@ -271,7 +271,7 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     """``edge-explorer eval predictor``: figures to --json, curves to --plot, a table on stdout."""
     import torch
 
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     torch.set_num_threads(1)
     from edge_explorer.bench.explore import load_predictor

@@ -153,7 +153,7 @@ def _write_outputs(
     flights: list[dict[str, Any]],
 ) -> None:
     """The bench so far as JSON, Markdown and PNG (each where a path was given)."""
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     json_path, markdown_path, plot_path = outputs
     table = summarize(flights, reference)

@@ -173,7 +173,7 @@ def _percent(value: float | None) -> str:
 
 
 def _write_outputs(out: Path, report: dict[str, Any]) -> None:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.runtime.flight_summary import in_fresh_process
 
     write_json(out / "soak.json", report)

@@ -38,7 +38,7 @@ def test_the_flight_entry_point_imports_nothing_heavy():
     them in its own order, the flight's kernels and LLVM's release first."""
     script = (
         "import sys\n"
-        "import edge_explorer.cli, edge_explorer.runtime.cli\n"
+        "import edge_explorer.cli, edge_explorer.commands.runtime\n"
         "import edge_explorer.runtime.flight, edge_explorer.runtime.kernels\n"
         f"print('HEAVY', sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY!r}))\n"
     )

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 
 if TYPE_CHECKING:
     import numpy as np
@@ -438,7 +438,7 @@ def save_bench_png(raster: PlanRaster, pictures: dict[str, Any], path: Path) -> 
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.world.catalog import load_building
 
     raster = load_building(args.plan)

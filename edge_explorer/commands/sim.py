@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 
 DESCRIPTION = "2-D exploration simulator: benchmark its step rate, draw an episode."
 
@@ -50,7 +50,7 @@ def _bench(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.sim.env import STAGES, ExplorationEnv
     from edge_explorer.world.catalog import load_buildings
 
