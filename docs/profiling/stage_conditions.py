@@ -35,7 +35,8 @@ from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.runtime.daemon import band_z_range_m
-from edge_explorer.sim.camera import CameraPose, DepthCamera
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraPose
 from edge_explorer.world.catalog import load_building
 from edge_explorer.world.grid import UNKNOWN
 

@@ -113,7 +113,7 @@ def _scripted_action(obs: dict[str, Any], rng: Any, turn: int) -> tuple[int, int
 
     A demonstration policy for ``sim show``, not an explorer: it wanders and turns away from what it sees.
     """
-    from edge_explorer.sim.dynamics import Action
+    from edge_explorer.vehicle.dynamics import Action
     from edge_explorer.world.grid import NON_FLIGHT, OCCUPIED
 
     high = obs["high"]

@@ -34,7 +34,7 @@ from edge_explorer.learn.predictor_flights import DEFAULT_SENSOR, Explorer, Scen
 from edge_explorer.predict.calibration import DEFAULT_LEVELS, Calibration, CalibrationSample, calibrate
 from edge_explorer.predict.predictor import THRESHOLDS_KEY, PredictorRuntime, card_thresholds
 from edge_explorer.sim.env import Predictor
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.sensor import SensorConfig
 
 
 def plan_samples(

@@ -51,7 +51,7 @@ from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.env import Predictor
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.raster import PlanRaster
 
 REPORT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95, 0.98)

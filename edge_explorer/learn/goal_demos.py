@@ -39,8 +39,8 @@ from edge_explorer.plan.goal_policy import (
 )
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
-from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
+from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.raster import PlanRaster
 
 DEMO_FORMAT = "edge-explorer/goal-demos"

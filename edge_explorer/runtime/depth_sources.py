@@ -30,8 +30,9 @@ import numpy as np
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.runtime.mavlink_link import Pose
-from edge_explorer.sim.camera import CameraPose, DepthCamera, DepthIntrinsics
+from edge_explorer.sim.camera import DepthCamera
 from edge_explorer.sim.vehicle import SimulatedVehicle
+from edge_explorer.vehicle.camera import CameraPose, DepthIntrinsics
 
 RECORDING_FORMAT = "edge-explorer-depth"
 RECORDING_VERSION = 1

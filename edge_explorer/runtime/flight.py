@@ -215,7 +215,8 @@ def _simulated_vehicle(raster: Any, start: tuple[float, float, float], noise_see
 def _depth_source(spec: str, raster: Any, vehicle: Any, rate_hz: float, noise_seed: int) -> Any:
     from edge_explorer.errors import EdgeExplorerError
     from edge_explorer.runtime.depth_sources import RealSenseDepthSource, ReplayDepthSource, SimulatedDepthSource
-    from edge_explorer.sim.camera import CameraPose, DepthCamera
+    from edge_explorer.sim.camera import DepthCamera
+    from edge_explorer.vehicle.camera import CameraPose
 
     if spec == "sim":
         camera = DepthCamera(raster)

@@ -50,8 +50,9 @@ def warm_kernels(raster: Any) -> None:
     from edge_explorer.mapping.metrics import map_metrics
     from edge_explorer.mapping.projection import HeightBand, project
     from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
-    from edge_explorer.sim.camera import CameraPose, DepthCamera
-    from edge_explorer.sim.dynamics import swept_path_blocked
+    from edge_explorer.sim.camera import DepthCamera
+    from edge_explorer.vehicle.camera import CameraPose
+    from edge_explorer.vehicle.dynamics import swept_path_blocked
     from edge_explorer.world.grid import LOW_RES_M
 
     band = HeightBand()  # the daemon's defaults (DaemonConfig.band, .fusion)

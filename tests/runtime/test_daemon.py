@@ -49,8 +49,9 @@ from edge_explorer.runtime.daemon import (
 )
 from edge_explorer.runtime.depth_sources import DepthFrame, SimulatedDepthSource
 from edge_explorer.runtime.mavlink_link import LinkConfig, LinkStatus, MavlinkLink, Pose
-from edge_explorer.sim.camera import CameraPose, DepthCamera, DepthIntrinsics
+from edge_explorer.sim.camera import DepthCamera
 from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, VehicleState
+from edge_explorer.vehicle.camera import CameraPose, DepthIntrinsics
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.grid import FREE, OCCUPIED
 from edge_explorer.world.plan import save_plan_json

@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from edge_explorer.bench import explore as bench
 from edge_explorer.sim.env import EnvConfig
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.catalog import load_buildings
 
 VARIANTS = {

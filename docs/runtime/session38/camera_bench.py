@@ -19,7 +19,8 @@ from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import HeightBand, align_to_grid, project
 from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
 from edge_explorer.runtime.daemon.config import DaemonConfig, band_z_range_m
-from edge_explorer.sim.camera import CameraPose, DepthCamera
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraPose
 from edge_explorer.sim.env import ExplorationEnv
 from edge_explorer.world.catalog import load_buildings
 from edge_explorer.world.grid import FREE, UNKNOWN

@@ -17,8 +17,9 @@ from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
 from edge_explorer.runtime.daemon.config import band_z_range_m
-from edge_explorer.sim.camera import CameraPose, DepthCamera
-from edge_explorer.sim.sensor import SensorConfig, scan
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraPose
+from edge_explorer.vehicle.sensor import SensorConfig, scan
 from edge_explorer.world.catalog import load_buildings
 from edge_explorer.world.grid import LOW_RES_M, UNKNOWN
 

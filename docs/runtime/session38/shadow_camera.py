@@ -21,7 +21,8 @@ from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
 from edge_explorer.runtime.daemon.config import band_z_range_m
 from edge_explorer.runtime.daemon.report import CoverageTruth
-from edge_explorer.sim.camera import CameraPose, DepthCamera
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraPose
 from edge_explorer.sim.env import ExplorationEnv
 from edge_explorer.world.catalog import load_buildings
 

@@ -40,7 +40,7 @@ from edge_explorer.plan.waypoint import WaypointPlanner
 from edge_explorer.predict.thresholding import thresholded_map
 from edge_explorer.runtime.daemon.report import DecisionView, StageTimings
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.sim.dynamics import Action
+from edge_explorer.vehicle.dynamics import Action
 from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec
 
 log = logging.getLogger(__name__)

@@ -26,7 +26,7 @@ from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import path_home
 from edge_explorer.runtime.daemon.config import band_z_range_m
 from edge_explorer.runtime.mavlink_link import LinkError
-from edge_explorer.sim.dynamics import Action
+from edge_explorer.vehicle.dynamics import Action
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ from edge_explorer.runtime.daemon.config import AUTOPILOT_MODES, STALL_BLAME_S
 from edge_explorer.runtime.depth_sources import DepthFrame
 from edge_explorer.runtime.mavlink_link import LinkStatus
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.sim.camera import CameraPose
+from edge_explorer.vehicle.camera import CameraPose
 
 log = logging.getLogger(__name__)
 
