@@ -4,7 +4,7 @@
 With no arguments it flies the embedded default: bundled building A, the shipped models when present (else the
 Nearest Frontier planner, said in the log), the ``host`` device profile, and the simulated PX4 vehicle with the
 simulated depth camera over real MAVLink on loopback UDP. The vehicle starts where the exploration benchmark starts
-on that building (:func:`edge_explorer.bench.explore.start_pose`), its odometry carries VIO-like noise and drift.
+on that building (:func:`edge_explorer.sim.starts.start_pose`), its odometry carries VIO-like noise and drift.
 
 Outputs in ``--out`` (default ``runs/run-<timestamp>/``): ``summary.json`` (coverage, correct coverage, path
 length, collisions, decisions, stage latency percentiles, CPU % of one core, peak RSS, backends), ``summary.png``

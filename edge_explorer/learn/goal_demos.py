@@ -186,7 +186,7 @@ def split_rasters(
 def _run_job(job: DemoJob) -> dict:
     import cv2
 
-    from edge_explorer.bench.explore import load_policy, load_predictor
+    from edge_explorer.learn.loaders import load_policy, load_predictor
 
     cv2.setNumThreads(1)
     t0 = time.perf_counter()

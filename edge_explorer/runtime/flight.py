@@ -4,7 +4,7 @@
 the simulated vehicle and depth camera or a real autopilot and camera), runs the :class:`~edge_explorer.runtime.
 daemon.Daemon` under SIGINT/SIGTERM handlers that stop it with a hold setpoint, and writes the outputs
 (:mod:`edge_explorer.runtime.flight_summary`). The vehicle starts where the exploration benchmark starts on that
-building (:func:`edge_explorer.bench.explore.start_pose`), its odometry carries VIO-like noise.
+building (:func:`edge_explorer.sim.starts.start_pose`), its odometry carries VIO-like noise.
 
 CPU: the daemon's share is the process's CPU time minus what belongs to the simulated world — the vehicle's
 physics thread and the depth renderer (the camera's work on a real drone) — over the run's wall time; the process
@@ -133,7 +133,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
 
 
 def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
-    """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.bench.explore.start_pose`), drawn in
+    """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.sim.starts.start_pose`), drawn in
     a new interpreter with numba's JIT off. The draw builds the training simulator (~50 MB) and resets it, which
     would compile a dozen numba kernels (LLVM's code and working memory: ~120 MB on a fresh install) whose results
     the pose does not depend on: the pose is drawn from the seeded generator and checked against the plan's

@@ -28,7 +28,7 @@ from edge_explorer.learn.goal_demos import split_rasters
 from edge_explorer.learn.goal_net import load_goal_net
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig
-from edge_explorer.sim.goal_env import GoalEnv
+from edge_explorer.learn.goal_env import GoalEnv
 
 GAMMA, SCALE = 0.99, 0.05  # PPOConfig's gamma and reward_scale
 
