@@ -195,9 +195,10 @@ def measure_loop(options: LoopOptions, on_decision: Callable[[int], None] = lamb
     from contextlib import ExitStack
 
     from edge_explorer.mapping.voxels import VoxelRegion
-    from edge_explorer.runtime.depth_sources import ReplayDepthSource, SimulatedDepthSource
+    from edge_explorer.runtime.depth_sources import ReplayDepthSource
     from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
     from edge_explorer.sim.camera import DepthCamera
+    from edge_explorer.sim.depth_source import SimulatedDepthSource
     from edge_explorer.sim.starts import start_pose
     from edge_explorer.sim.vehicle import OdometryNoise, SimulatedVehicle, VehicleConfig
     from edge_explorer.vehicle.camera import CameraPose
