@@ -50,6 +50,7 @@ venv: $(VENV)/.stamp-all
 lint: $(VENV)/.stamp-test
 	$(BIN)/ruff check edge_explorer tests
 	$(BIN)/ruff format --check edge_explorer tests
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
