@@ -1,7 +1,8 @@
 """The ``edge-explorer`` command line.
 
-Each pipeline stage owns its subcommands in its own ``cli`` module with a ``register(subparsers)`` function;
-handlers import their heavy dependencies lazily so ``edge-explorer --help`` and the daemon stay light.
+Each pipeline stage owns its subcommands in its own module of :mod:`edge_explorer.commands` with a
+``register(subparsers)`` function; handlers import their heavy dependencies lazily so ``edge-explorer --help`` and
+the daemon stay light.
 A user error (:class:`~edge_explorer.errors.EdgeExplorerError`) prints one line and exits with code 2.
 """
 
@@ -9,24 +10,21 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import sys
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any
 
 from edge_explorer.errors import EdgeExplorerError
 
 # One module per stage; each defines ``register(subparsers: argparse._SubParsersAction) -> None``.
 COMMAND_MODULES: tuple[str, ...] = (
-    "edge_explorer.world.cli",
-    "edge_explorer.sim.cli",
-    "edge_explorer.mapping.cli",
-    "edge_explorer.learn.cli",
-    "edge_explorer.bench.cli",
-    "edge_explorer.runtime.cli",
-    "edge_explorer.export.cli",
-    "edge_explorer.profiling.cli",
+    "edge_explorer.commands.world",
+    "edge_explorer.commands.sim",
+    "edge_explorer.commands.mapping",
+    "edge_explorer.commands.learn",
+    "edge_explorer.commands.bench",
+    "edge_explorer.commands.runtime",
+    "edge_explorer.commands.export",
+    "edge_explorer.commands.profiling",
 )
 
 EXIT_USAGE = 2
@@ -39,40 +37,12 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def positive_int(text: str) -> int:
-    """argparse type for counts: a positive integer, with a one-line error otherwise."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="edge-explorer", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser, required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser
-
-
-def write_json(path: str | Path | None, payload: Any) -> None:
-    """Write a command's machine-readable figures (``--json PATH``); parent folders are created."""
-    if path is None:
-        return
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(payload, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(obj: Any) -> Any:
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"cannot serialise {type(obj).__name__} to JSON")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

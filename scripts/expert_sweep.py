@@ -41,8 +41,8 @@ from edge_explorer.plan.frontier import NearestFrontier, PlannerConfig
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
-from edge_explorer.sim.dynamics import VehicleModel, write_action_table
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.vehicle.dynamics import VehicleModel, write_action_table
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.dataset import iter_shard_plans
 from edge_explorer.world.raster import PlanRaster

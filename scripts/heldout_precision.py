@@ -15,8 +15,8 @@ import dataclasses
 import json
 from pathlib import Path
 
-from edge_explorer.bench.explore import load_predictor
 from edge_explorer.learn.calibrate_predictor import collect_samples
+from edge_explorer.learn.loaders import load_predictor
 from edge_explorer.learn.predictor_flights import DEFAULT_SENSOR
 from edge_explorer.predict.calibration import score_pair
 from edge_explorer.predict.predictor import thresholds_of

@@ -50,8 +50,9 @@ from edge_explorer.profiling.loop import RECORDED_TIMINGS, REPLAYED_STAGES
 from edge_explorer.profiling.models import feed_for
 from edge_explorer.runtime.daemon import band_z_range_m
 from edge_explorer.runtime.depth_sources import ReplayDepthSource
-from edge_explorer.sim.camera import CameraPose, DepthCamera
-from edge_explorer.sim.dynamics import Action
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraPose
+from edge_explorer.vehicle.dynamics import Action
 from edge_explorer.world.catalog import load_building
 from edge_explorer.world.grid import FREE, UNKNOWN
 

@@ -86,7 +86,7 @@ def test_cycles_are_found() -> None:
 def test_the_graph_sees_function_level_and_relative_imports() -> None:
     graph = import_graph()
     assert "edge_explorer.runtime.options" in graph["edge_explorer.runtime.acceptance"]
-    assert "edge_explorer.runtime.flight" in graph["edge_explorer.runtime.cli"]  # imported inside _run
+    assert "edge_explorer.runtime.flight" in graph["edge_explorer.commands.runtime"]  # imported inside _run
 
 
 def test_no_import_cycle_in_edge_explorer() -> None:

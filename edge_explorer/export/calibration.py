@@ -9,7 +9,7 @@ observations are the same on every machine. Its first ``plans`` plans calibrate 
   drawn uniformly), and each recorded map becomes the network's input exactly as in flight: the north-up ego window
   (:func:`~edge_explorer.mapping.ego.pad_shift`) encoded by :func:`~edge_explorer.predict.encoding.encode_windows`.
   Held-back samples keep their map, robot cell and plan so the gates can threshold and score them.
-* **Goal policy**: :class:`~edge_explorer.sim.goal_env.GoalEnv` episodes (one step per goal decision; the recipe's
+* **Goal policy**: :class:`~edge_explorer.learn.goal_env.GoalEnv` episodes (one step per goal decision; the recipe's
   predictor filling the fused map, as in phase-2 training), choosing with the fp32 network's masked argmax (10 %
   uniformly random valid goals so episodes differ) or uniformly at random. Every decision is recorded — each
   follows a whole goal flight, so consecutive ones are not near duplicates — up to ``per_plan`` per plan, with
@@ -117,10 +117,10 @@ def goal_observations(
 ) -> Observations:
     """Roll the goal env out on the val plans and record every decision with its valid-goal mask; ``act`` maps an
     observation and its flat mask to a valid flat goal cell (see the module docstring)."""
+    from edge_explorer.learn.goal_env import GoalEnv
     from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
     from edge_explorer.predict.predictor import thresholds_of
     from edge_explorer.sim.env import EnvConfig
-    from edge_explorer.sim.goal_env import GoalEnv
 
     calibration_rasters, held_back_rasters = val_rasters(config)
     shape = (GOAL_GRID_CELLS, GOAL_GRID_CELLS)

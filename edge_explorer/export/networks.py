@@ -34,7 +34,7 @@ from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS, PRE
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GOAL_POOL
 from edge_explorer.predict.encoding import INPUT_CHANNELS
 from edge_explorer.predict.thresholding import ThresholdConfig
-from edge_explorer.sim.dynamics import TABLE_VERSION
+from edge_explorer.vehicle.dynamics import TABLE_VERSION
 
 PREDICTOR_ENCODING = (
     "edge_explorer.predict.encoding.encode_windows: NCHW float32, channel 0 = observed FREE, channel 1 = observed "

@@ -157,7 +157,7 @@ def collect_observations(recipe: Recipe, network: ExportNetwork) -> Observations
 
     predictor = None
     if recipe.calibration.predictor is not None:
-        from edge_explorer.bench.explore import load_predictor
+        from edge_explorer.learn.loaders import load_predictor
 
         predictor = load_predictor(str(recipe.calibration.predictor))
     return goal_observations(recipe.calibration, lambda obs, mask: gate_fns.masked_argmax(scores(obs), mask),

@@ -34,7 +34,7 @@ from edge_explorer.learn.predictor_flights import DEFAULT_SENSOR, Explorer, Scen
 from edge_explorer.predict.calibration import DEFAULT_LEVELS, Calibration, CalibrationSample, calibrate
 from edge_explorer.predict.predictor import THRESHOLDS_KEY, PredictorRuntime, card_thresholds
 from edge_explorer.sim.env import Predictor
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.sensor import SensorConfig
 
 
 def plan_samples(
@@ -152,7 +152,7 @@ def _fmt(precision: float | None) -> str:
 
 def calibrate_cli(args: argparse.Namespace) -> int:
     """``edge-explorer train calibrate-predictor``: 0 when the card was written, 1 when no pair met the target."""
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     card_path = args.model / CARD_FILE
     predictor = PredictorRuntime(load_model(card_path))  # as the daemon runs it: the backend chain, int8 first

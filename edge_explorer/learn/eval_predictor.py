@@ -14,7 +14,7 @@ Aggregation: per coverage level, the mean over the plans whose flight reached it
 inside of tall furniture is never observable, so not every plan reaches 98 % true coverage).
 
 The predictor is any ``Callable[[int8 256×256 window], float32 probabilities]`` (:data:`edge_explorer.sim.env.
-Predictor`), loaded by :func:`edge_explorer.bench.explore.load_predictor`: the torch weights
+Predictor`), loaded by :func:`edge_explorer.learn.loaders.load_predictor`: the torch weights
 (:class:`~edge_explorer.learn.unet.TorchPredictor`) or an exported model folder (ONNX / TFLite through the backend
 chain, exactly what the daemon runs).
 """
@@ -51,7 +51,7 @@ from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.env import Predictor
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.raster import PlanRaster
 
 REPORT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95, 0.98)
@@ -217,7 +217,7 @@ def _evaluate_unit(
     k, raster = unit
     if isinstance(predictor, str):
         if predictor not in _WORKER_PREDICTORS:
-            from edge_explorer.bench.explore import load_predictor
+            from edge_explorer.learn.loaders import load_predictor
 
             _WORKER_PREDICTORS[predictor] = load_predictor(predictor)
         predictor = _WORKER_PREDICTORS[predictor]
@@ -239,7 +239,7 @@ def evaluate(
 ) -> dict:
     """Fly and score every plan of ``plans_ref``; plan ``k`` uses the seed sequence (seed, k).
 
-    ``predictor`` is a predictor or a reference for :func:`~edge_explorer.bench.explore.load_predictor`; with ``ray``
+    ``predictor`` is a predictor or a reference for :func:`~edge_explorer.learn.loaders.load_predictor`; with ``ray``
     (``"auto"`` or an address) the plans are Ray tasks, each loading the predictor from its reference."""
     from tqdm import tqdm
 
@@ -271,10 +271,10 @@ def evaluate_cli(args: argparse.Namespace) -> int:
     """``edge-explorer eval predictor``: figures to --json, curves to --plot, a table on stdout."""
     import torch
 
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     torch.set_num_threads(1)
-    from edge_explorer.bench.explore import load_predictor
+    from edge_explorer.learn.loaders import load_predictor
 
     predictor = load_predictor(str(args.model))
     weights = args.model / CARD_FILE if args.model.is_dir() else args.model

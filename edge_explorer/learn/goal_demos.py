@@ -39,9 +39,9 @@ from edge_explorer.plan.goal_policy import (
 )
 from edge_explorer.plan.predictive import PredictiveFrontier
 from edge_explorer.predict.predictor import thresholds_of
-from edge_explorer.sim.dynamics import ActionTable
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.sim.episode import Episode
+from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.raster import PlanRaster
 
 DEMO_FORMAT = "edge-explorer/goal-demos"
@@ -179,7 +179,7 @@ def split_rasters(
 def _run_job(job: DemoJob) -> dict:
     import cv2
 
-    from edge_explorer.bench.explore import load_policy, load_predictor
+    from edge_explorer.learn.loaders import load_policy, load_predictor
 
     cv2.setNumThreads(1)
     t0 = time.perf_counter()

@@ -31,10 +31,10 @@ from numba import njit
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.metrics import map_metrics
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.sim import dynamics
-from edge_explorer.sim.dynamics import wrap_angle_rad
 from edge_explorer.sim.episode import move, previous_after
-from edge_explorer.sim.sensor import SensorConfig, scan
+from edge_explorer.vehicle import dynamics
+from edge_explorer.vehicle.dynamics import wrap_angle_rad
+from edge_explorer.vehicle.sensor import SensorConfig, scan
 from edge_explorer.world.grid import LOW_RES_M, UNKNOWN, GridSpec
 from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster, configuration_space
 

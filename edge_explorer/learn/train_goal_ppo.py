@@ -1,4 +1,4 @@
-"""PPO for the goal policy: sb3-contrib's MaskablePPO on :class:`~edge_explorer.sim.goal_env.GoalEnv`, from BC.
+"""PPO for the goal policy: sb3-contrib's MaskablePPO on :class:`~edge_explorer.learn.goal_env.GoalEnv`, from BC.
 
 The actor-critic is the :class:`~edge_explorer.learn.goal_net.GoalNet` itself: its spatial action map is the
 policy's logits over the 3,481 goal cells and its value head the critic (:class:`GoalActorCritic` plugs the network
@@ -13,7 +13,7 @@ cluster (:class:`~edge_explorer.learn.ray_vec_env.RayVecEnv`; the learner stays 
 ``checkpoint_every`` decisions the SB3 model is saved to
 ``OUT/checkpoint.zip`` (SB3's format, for ``--resume`` inside runs/ only) and the network to
 ``OUT/latest.safetensors``; every ``eval_every`` decisions the deterministic policy flies ``eval_plans`` val plans
-through the benchmark (:func:`~edge_explorer.bench.explore.run_episode`) and ``OUT/val_log.csv`` records success
+through the benchmark (:func:`~edge_explorer.sim.episode.run_episode`) and ``OUT/val_log.csv`` records success
 and the path at 95 % coverage; the best (most successes, then the shortest mean path) is ``OUT/best.safetensors``.
 """
 
@@ -37,10 +37,10 @@ from torch import nn
 
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.csv_log import append_csv_row
+from edge_explorer.learn.goal_env import NUM_GOALS, GoalEnv
 from edge_explorer.learn.goal_net import GoalNet, GoalNetConfig, load_goal_net, save_goal_net
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig
-from edge_explorer.sim.goal_env import NUM_GOALS, GoalEnv
 
 
 @dataclass(frozen=True)
@@ -133,8 +133,8 @@ def _make_env(config: PPOConfig, rank: int):  # noqa: ANN202 - SB3's env factory
     def make() -> gym.Env:
         import cv2
 
-        from edge_explorer.bench.explore import load_predictor
         from edge_explorer.learn.goal_demos import split_rasters
+        from edge_explorer.learn.loaders import load_predictor
 
         cv2.setNumThreads(1)
         torch.set_num_threads(1)
@@ -153,19 +153,22 @@ def evaluate(net: GoalNet, config: PPOConfig) -> dict[str, float]:
     """The deterministic policy on ``eval_plans`` val plans through the benchmark: successes and mean path."""
     import copy
 
-    from edge_explorer.bench import explore as bench
     from edge_explorer.learn.goal_demos import split_rasters
     from edge_explorer.learn.goal_net import TorchGoalPolicy
+    from edge_explorer.learn.loaders import load_predictor
+    from edge_explorer.sim.runs import RunSpec, run_episode
+    from edge_explorer.sim.starts import start_pose
+    from edge_explorer.world.seeds import run_seed
 
-    predictor = bench.load_predictor(config.predictor) if config.predictor else None
+    predictor = load_predictor(config.predictor) if config.predictor else None
     policy = TorchGoalPolicy(copy.deepcopy(net))
     paths, successes = [], 0
     for raster in split_rasters(config.plans, "val", config.val_first, config.val_first + config.eval_plans):
-        spec = bench.RunSpec(
-            "drl", raster.name, 0, bench.run_seed(0, raster.name, 0), bench.start_pose(raster, 0), 0.95,
+        spec = RunSpec(
+            "drl", raster.name, 0, run_seed(0, raster.name, 0), start_pose(raster, 0), 0.95,
             config.max_steps, config.predictor or None, "eval",
         )  # fmt: skip
-        record = bench.run_episode(raster, spec, predictor, policy)
+        record = run_episode(raster, spec, predictor, policy)
         if record["path_at_coverage_m"] is not None and record["collisions"] == 0:
             successes += 1
             paths.append(record["path_at_coverage_m"])

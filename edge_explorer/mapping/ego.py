@@ -45,7 +45,7 @@ from edge_explorer.world.raster import ROBOT_RADIUS_M
 PREDICTOR_WINDOW_CELLS = 256  # north-up predictor input at 0.20 m
 OBSERVATION_WINDOW_CELLS = 237  # heading-up policy observation (0.05 m high layer, 0.20 m thresholded layer)
 INFLATION_RADIUS_M = ROBOT_RADIUS_M
-NUM_ACTIONS = 6  # length of the one-hot last action; equals len(edge_explorer.sim.dynamics.Action)
+NUM_ACTIONS = 6  # length of the one-hot last action; equals len(edge_explorer.vehicle.dynamics.Action)
 
 Cell = tuple[int, int]  # (row, col) on a grid
 

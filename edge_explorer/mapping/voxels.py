@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from edge_explorer.sim.camera import DepthIntrinsics, DepthNoise
+from edge_explorer.vehicle.camera import DepthIntrinsics, DepthNoise
 from edge_explorer.world.grid import HIGH_RES_M, LOW_RES_M, GridSpec
 
 LOGODDS_SCALE = 1000  # stored int16 value = round(log-odds · LOGODDS_SCALE)
@@ -209,7 +209,7 @@ class VoxelMaps:
         """Fuse one depth frame (z-depth metres, float32/float64, shape of ``intrinsics``) taken at a pose.
 
         ``rotation_map_from_optical`` takes optical-frame vectors (z forward, x right, y down) to ``map``; for a
-        body attitude use :meth:`edge_explorer.sim.camera.CameraPose.rotation_map_from_optical`. Timestamps must
+        body attitude use :meth:`edge_explorer.vehicle.camera.CameraPose.rotation_map_from_optical`. Timestamps must
         not decrease. Raises :class:`FusionInputError` (nothing written) on bad input.
         """
         position, rotation = self._validate(depth_m, intrinsics, position_m, rotation_map_from_optical, timestamp_s)

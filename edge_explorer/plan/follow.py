@@ -38,7 +38,14 @@ from itertools import product
 
 import numpy as np
 
-from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable, body_to_map, swept_path_blocked, wrap_angle_rad
+from edge_explorer.vehicle.dynamics import (
+    NUM_ACTIONS,
+    Action,
+    ActionTable,
+    body_to_map,
+    swept_path_blocked,
+    wrap_angle_rad,
+)
 from edge_explorer.world.flight_space import FLIGHT_CLEARANCE, centre_clearance_m
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 

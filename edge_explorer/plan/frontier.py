@@ -34,7 +34,7 @@ from scipy import ndimage
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose, choose_action, remaining_path_m
 from edge_explorer.plan.graph import GraphConfig, PlanningGraph, Traversable
-from edge_explorer.sim.dynamics import Action, ActionTable, load_action_table
+from edge_explorer.vehicle.dynamics import Action, ActionTable, load_action_table
 from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec, resolution_factor
 
 _FULL_TURN_STEPS = 12  # 12 × 30°

@@ -46,8 +46,8 @@ from edge_explorer.plan.frontier import (
     frontier_clusters,
     nearest_frontier_goal,
 )
-from edge_explorer.sim.dynamics import ActionTable
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.dynamics import ActionTable
+from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.grid import OCCUPIED, GridSpec
 
 _UNREACHABLE_S = 1e5  # travel time standing in for "no path" in the TSP

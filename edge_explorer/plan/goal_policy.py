@@ -36,7 +36,7 @@ from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View, goal_candidates
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions, ego_goal_cells, goal_options
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier, view_window, visible_unknown
-from edge_explorer.sim.dynamics import ActionTable
+from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 
 GoalPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]  # observation → (59, 59) goal-cell scores

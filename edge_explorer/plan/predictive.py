@@ -56,8 +56,8 @@ from edge_explorer.plan.frontier import (
     goal_candidates,
     nearest_frontier_goal,
 )
-from edge_explorer.sim.dynamics import ActionTable
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.dynamics import ActionTable
+from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 
 

@@ -2,7 +2,7 @@
 
 A planner sees what the vehicle has observed and where it is — and, where a predictor runs, the fused map
 (docs/design.md §5: observed cells plus the thresholded prediction treated as known) — and answers one of the six
-action ids (:class:`~edge_explorer.sim.dynamics.Action`) per step, so every method flies the same vehicle and path
+action ids (:class:`~edge_explorer.vehicle.dynamics.Action`) per step, so every method flies the same vehicle and path
 lengths compare. ``None`` means the planner has nothing left to explore. Planners choose *goals* (where to look
 next); the shared :class:`~edge_explorer.plan.frontier.GoalPlanner` loop plans the path through observed free space
 and follows it, so a prediction never makes a cell flyable.
@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # the registry itself stays light: command lines list its nam
     from edge_explorer.plan.follow import FollowConfig, Pose
     from edge_explorer.plan.frontier import GoalPlanner, PlannerConfig
     from edge_explorer.plan.goal_policy import GoalPolicy
-    from edge_explorer.sim.dynamics import ActionTable
+    from edge_explorer.vehicle.dynamics import ActionTable
 
 
 class Planner(Protocol):

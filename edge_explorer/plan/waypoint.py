@@ -1,7 +1,7 @@
 """Action → waypoint, and the safety check every waypoint passes before the daemon flies it (docs/design.md §8).
 
 **Waypoint.** An action moves the vehicle by the shared action table's mean motion for (previous action, action)
-(:mod:`edge_explorer.sim.dynamics`, momentum included), from the pose the step starts at — the same motion the
+(:mod:`edge_explorer.vehicle.dynamics`, momentum included), from the pose the step starts at — the same motion the
 simulator trained the policy with. The trajectory reaches the waypoint after one step period at the action's
 *cruise* velocity (:func:`cruise_velocity`), so consecutive steps join as the table's vehicle model assumes.
 
@@ -15,7 +15,7 @@ waypoint, and the drift of braking there (hover after the action, also from the 
   strictly outside the NON_FLIGHT band of the inflated 0.05 m map (the band is the cells within the robot radius).
 
 The map is :class:`~edge_explorer.plan.follow.FreeSpace` and the test its ``unsafe_mask`` with
-:func:`~edge_explorer.sim.dynamics.swept_path_blocked`: one definition of "safe" for the follower and the daemon.
+:func:`~edge_explorer.vehicle.dynamics.swept_path_blocked`: one definition of "safe" for the follower and the daemon.
 If the vehicle already stands closer to an obstacle than ``safe_distance_m`` (sensor noise, a gust), motions that
 do not bring it closer remain allowed, so it can fly out.
 
@@ -37,7 +37,7 @@ import numpy as np
 
 from edge_explorer.plan.follow import FollowConfig, FreeSpace, Pose
 from edge_explorer.plan.graph import GraphConfig, PlanningGraph
-from edge_explorer.sim.dynamics import Action, ActionTable, body_to_map, swept_path_blocked
+from edge_explorer.vehicle.dynamics import Action, ActionTable, body_to_map, swept_path_blocked
 
 HOLD = "hold"  # the source of a waypoint that keeps the vehicle where it is
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from edge_explorer.profiling.device_profile import DeviceProfile
+from edge_explorer.runtime.device_profile import DeviceProfile
 
 MODEL_STAGES: tuple[str, ...] = ("predictor", "policy")  # stages that are one network inference (plus glue)
 BUDGETED_STAGES: tuple[str, ...] = ("fuse", "predictor", "policy", "decision")

@@ -44,8 +44,8 @@ from edge_explorer.runtime.daemon import (
 )
 from edge_explorer.runtime.depth_sources import DepthFrame, DepthSource, Recorder
 from edge_explorer.runtime.flight import thread_cpu_s
-from edge_explorer.sim.camera import DepthIntrinsics
 from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
+from edge_explorer.vehicle.camera import DepthIntrinsics
 
 log = logging.getLogger(__name__)
 
@@ -194,13 +194,16 @@ def measure_loop(options: LoopOptions, on_decision: Callable[[int], None] = lamb
     """
     from contextlib import ExitStack
 
-    from edge_explorer.bench.explore import run_seed, start_pose
     from edge_explorer.mapping.voxels import VoxelRegion
-    from edge_explorer.runtime.depth_sources import ReplayDepthSource, SimulatedDepthSource
+    from edge_explorer.runtime.depth_sources import ReplayDepthSource
     from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
-    from edge_explorer.sim.camera import CameraPose, DepthCamera
+    from edge_explorer.sim.camera import DepthCamera
+    from edge_explorer.sim.depth_source import SimulatedDepthSource
+    from edge_explorer.sim.starts import start_pose
     from edge_explorer.sim.vehicle import OdometryNoise, SimulatedVehicle, VehicleConfig
+    from edge_explorer.vehicle.camera import CameraPose
     from edge_explorer.world.catalog import load_building
+    from edge_explorer.world.seeds import run_seed
 
     raster = load_building(options.plan)
     noise_seed = run_seed(options.seed, raster.name, 0)

@@ -16,7 +16,6 @@ from collections.abc import Sequence
 from typing import Any
 
 from edge_explorer.backends.chain import BACKENDS
-from edge_explorer.profiling.device_profile import MODEL_NAMES, DeviceProfile
 from edge_explorer.profiling.estimate import (
     CPU_BACKENDS,
     FAIL,
@@ -33,6 +32,7 @@ from edge_explorer.profiling.estimate import (
 )
 from edge_explorer.profiling.loop import LoopMeasurement
 from edge_explorer.profiling.models import BackendRun, ModelInfo
+from edge_explorer.runtime.device_profile import MODEL_NAMES, DeviceProfile
 
 REPORT_FORMAT = "edge-explorer/profile-report"
 STAGE_LABELS: dict[str, str] = {

@@ -3,7 +3,7 @@
 Every flight is a full ``edge-explorer run`` in its own process (real time, real MAVLink on loopback UDP, the
 simulated vehicle and depth camera), one after the other — round by round, run 0 of every building first — so each
 daemon's CPU time and peak RSS are its own, as on the drone. Run ``k`` of a building starts where the exploration
-benchmark starts on it and uses the benchmark's noise seed of run ``k`` (:func:`edge_explorer.bench.explore.run_seed`),
+benchmark starts on it and uses the benchmark's noise seed of run ``k`` (:func:`edge_explorer.world.seeds.run_seed`),
 so path lengths compare with ``bench explore``.
 
 Per building and over all: flights that reached the coverage goal, collisions, the path length when coverage first
@@ -153,7 +153,7 @@ def _write_outputs(
     flights: list[dict[str, Any]],
 ) -> None:
     """The bench so far as JSON, Markdown and PNG (each where a path was given)."""
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     json_path, markdown_path, plot_path = outputs
     table = summarize(flights, reference)

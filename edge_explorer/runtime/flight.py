@@ -3,8 +3,9 @@
 :class:`RunOptions` holds one flight's arguments; :func:`fly` sets the flight up (device profile, building, models,
 the simulated vehicle and depth camera or a real autopilot and camera), runs the :class:`~edge_explorer.runtime.
 daemon.Daemon` under SIGINT/SIGTERM handlers that stop it with a hold setpoint, and writes the outputs
-(:mod:`edge_explorer.runtime.flight_summary`). The vehicle starts where the exploration benchmark starts on that
-building (:func:`edge_explorer.bench.explore.start_pose`), its odometry carries VIO-like noise.
+(:mod:`edge_explorer.runtime.flight_summary`). The simulated vehicle and camera come from the caller
+(:class:`Simulation`, built by :mod:`edge_explorer.sim.flight`): the vehicle starts where the exploration benchmark
+starts on that building (:func:`edge_explorer.sim.starts.start_pose`), its odometry carries VIO-like noise.
 
 CPU: the daemon's share is the process's CPU time minus what belongs to the simulated world — the vehicle's
 physics thread and the depth renderer (the camera's work on a real drone) — over the run's wall time; the process
@@ -21,18 +22,45 @@ import threading
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from edge_explorer.runtime.options import RunOptions
+
+if TYPE_CHECKING:
+    from edge_explorer.runtime.depth_sources import DepthSource
 
 log = logging.getLogger(__name__)
 
 
-def fly(options: RunOptions) -> dict[str, Any]:
-    """Fly one run as ``edge-explorer run`` does and write its outputs; returns the summary (also in JSON)."""
+class Simulation(Protocol):
+    """The simulated world a flight without ``--connect`` flies in (:class:`edge_explorer.sim.flight.SimulatedFlight`;
+    the command line builds it, so that a flight with a real autopilot never imports the simulator)."""
+
+    @property
+    def vehicle_thread(self) -> str:
+        """The simulated vehicle's physics thread, whose CPU time is metered apart from the daemon's."""
+        ...
+
+    def camera(self, raster: Any) -> Any:
+        """The depth renderer of ``raster``: its kernel is loaded with the flight's (``warm_kernels``)."""
+        ...
+
+    def start_pose(self, plan: str, seed: int) -> tuple[float, float, float]: ...
+
+    def vehicle(self, raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any: ...
+
+    def depth_source(self, raster: Any, vehicle: Any, rate_hz: float, noise_seed: int) -> DepthSource: ...
+
+
+def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, Any]:
+    """Fly one run as ``edge-explorer run`` does and write its outputs; returns the summary (also in JSON).
+
+    Without ``options.connect`` the flight needs ``simulation`` (the simulated vehicle and depth camera,
+    :class:`edge_explorer.sim.flight.SimulatedFlight`), which the caller builds: this module imports nothing of the
+    simulator."""
     from contextlib import ExitStack
 
-    from edge_explorer.profiling.device_profile import load_profile
+    from edge_explorer.runtime.device_profile import load_profile
     from edge_explorer.runtime.kernels import kernels_warm, release_llvm_pages, warm_kernels
     from edge_explorer.world.catalog import load_building
 
@@ -48,23 +76,25 @@ def fly(options: RunOptions) -> dict[str, Any]:
         if options.connect is None:
             if raster is None:
                 raise ValueError("the simulated vehicle needs a plan")
-            start = _start_pose(options.plan, options.seed)
+            if simulation is None:
+                raise ValueError("without --connect the flight needs the simulated vehicle (edge_explorer.sim.flight)")
+            start = simulation.start_pose(options.plan, options.seed)
         if raster is not None:
             # Before the flight's other imports: the flight's numba kernels compiled in a child (on a fresh install)
             # and loaded here, then LLVM's pages handed back (runtime/kernels.py).
+            camera = simulation.camera if simulation is not None else None
             if not kernels_warm():
-                _compile_kernels(raster)
-                warm_kernels(raster)
+                _compile_kernels(raster, camera)
+                warm_kernels(raster, camera)
             log.info("numba kernels loaded; %.1f MB of LLVM's pages released", release_llvm_pages())
 
-        from edge_explorer.bench.explore import run_seed
         from edge_explorer.mapping.voxels import VoxelRegion
         from edge_explorer.plan.registry import PLANNERS
         from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
         from edge_explorer.runtime.depth_sources import Recorder
         from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
         from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
-        from edge_explorer.sim.vehicle import THREAD_NAME as SIM_VEHICLE_THREAD
+        from edge_explorer.world.seeds import run_seed
 
         noise_seed = run_seed(options.seed, raster.name, options.run_index) if raster is not None else options.seed
         models = choose_models(
@@ -90,13 +120,14 @@ def fly(options: RunOptions) -> dict[str, Any]:
             vehicle = None
             if options.connect is None:
                 assert raster is not None and start is not None
-                vehicle = stack.enter_context(_simulated_vehicle(raster, start, noise_seed, options.autopilot))
+                assert simulation is not None
+                vehicle = stack.enter_context(simulation.vehicle(raster, start, noise_seed, options.autopilot))
                 connect = f"udpout:127.0.0.1:{vehicle.address[1]}"
             else:
                 connect = options.connect
             link_config = LinkConfig(connect=connect, setpoint_rate_hz=setpoint_rate_hz, tlog_path=out / "flight.tlog")
             link = stack.enter_context(MavlinkLink(link_config))
-            source = _depth_source(options.source, raster, vehicle, profile.rates_hz.depth, noise_seed)
+            source = _depth_source(options.source, raster, vehicle, profile.rates_hz.depth, noise_seed, simulation)
             stack.callback(source.close)
             recorder = None
             if options.record_dir is not None:
@@ -111,10 +142,11 @@ def fly(options: RunOptions) -> dict[str, Any]:
                 region=VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)) if raster is not None else None,
                 recorder=recorder,
             )
-            vehicle_cpu0 = thread_cpu_s(SIM_VEHICLE_THREAD)
+            vehicle_thread = simulation.vehicle_thread if simulation is not None else None
+            vehicle_cpu0 = thread_cpu_s(vehicle_thread) if vehicle_thread is not None else 0.0
             with _stop_on_signals(daemon):
                 report = daemon.run(_progress_printer(models, config.exploration_planner) if options.progress else None)
-            vehicle_cpu_s = thread_cpu_s(SIM_VEHICLE_THREAD) - vehicle_cpu0
+            vehicle_cpu_s = (thread_cpu_s(vehicle_thread) if vehicle_thread is not None else 0.0) - vehicle_cpu0
             collisions = vehicle.state().collisions if vehicle is not None else None
             peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
             rss_now_mb = resident_memory_mb()
@@ -132,54 +164,7 @@ def fly(options: RunOptions) -> dict[str, Any]:
         file_log.close()
 
 
-def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
-    """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.bench.explore.start_pose`), drawn in
-    a new interpreter with numba's JIT off. The draw builds the training simulator (~50 MB) and resets it, which
-    would compile a dozen numba kernels (LLVM's code and working memory: ~120 MB on a fresh install) whose results
-    the pose does not depend on: the pose is drawn from the seeded generator and checked against the plan's
-    clearance before the simulator's sensor runs. Interpreted, the draw takes ~0.4 s and ~180 MB, none of it in the
-    flight's process (tests/runtime/test_kernels.py checks the pose is the same)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    spawn = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=1, mp_context=spawn, initializer=_numba_jit_off) as pool:
-        return pool.submit(_draw_start_pose, plan, seed).result()
-
-
-def _numba_jit_off() -> None:
-    """In the start pose's interpreter, before numba's import: njit functions stay plain Python functions, and the
-    LLVM pages numba's import maps (~90 MB on a fresh install) are handed back at once, as nothing compiles."""
-    os.environ["NUMBA_DISABLE_JIT"] = "1"
-    import numba  # noqa: F401
-
-    from edge_explorer.runtime.kernels import release_llvm_pages
-
-    release_llvm_pages()
-
-
-def _draw_start_pose(plan: str, seed: int) -> tuple[float, float, float]:
-    """The start pose's child's work. Where numba's JIT is on (any caller but :func:`_start_pose`'s interpreter),
-    the flight's kernels run first (:func:`~edge_explorer.runtime.kernels.warm_kernels`, then LLVM's pages are
-    released), so that one call fills numba's cache for a whole flight."""
-    import numba
-
-    from edge_explorer.world.catalog import load_building
-
-    raster = load_building(plan)
-    if not numba.config.DISABLE_JIT:
-        from edge_explorer.runtime.kernels import release_llvm_pages, warm_kernels
-
-        warm_kernels(raster)
-        release_llvm_pages()
-
-    from edge_explorer.bench.explore import start_pose
-
-    x_m, y_m, yaw_rad = start_pose(raster, seed)
-    return float(x_m), float(y_m), float(yaw_rad)
-
-
-def _compile_kernels(raster: Any) -> None:
+def _compile_kernels(raster: Any, camera: Any = None) -> None:
     """:func:`~edge_explorer.runtime.kernels.warm_kernels` in a forked child process: on a fresh install numba
     compiles the flight's kernels there (LLVM's code and working memory, ~100 MB, and ~2 s) into its on-disk
     cache, so the flight's process only loads them — as on a drone whose install step compiled them. Forked before
@@ -188,40 +173,25 @@ def _compile_kernels(raster: Any) -> None:
 
     from edge_explorer.runtime.kernels import warm_kernels
 
-    child = multiprocessing.get_context("fork").Process(target=warm_kernels, args=(raster,), name="compile-kernels")
+    child = multiprocessing.get_context("fork").Process(
+        target=warm_kernels, args=(raster, camera), name="compile-kernels"
+    )
     child.start()
     child.join()
     if child.exitcode != 0:
         raise RuntimeError(f"compiling the flight's numba kernels failed (exit code {child.exitcode})")
 
 
-def _simulated_vehicle(raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any:
-    from edge_explorer.sim.vehicle import OdometryNoise, SimulatedVehicle, VehicleConfig
-
-    # White odometry noise only: the simulated vehicle flies its true position to the setpoint while it reports the
-    # drifted one, whereas a real autopilot flies its own (drifting) estimate; with drift on, every hold at the
-    # reported pose would creep by the drift.
-    noise = OdometryNoise(position_drift_m_per_sqrt_s=0.0, yaw_drift_rad_per_sqrt_s=0.0, seed=noise_seed)
-    config = VehicleConfig(
-        connect="udpin:127.0.0.1:0",
-        flavour=flavour,
-        start_xyz_m=(start[0], start[1], 0.0),
-        start_yaw_rad=start[2],
-        odometry_noise=noise,
-    )
-    return SimulatedVehicle(config, raster)
-
-
-def _depth_source(spec: str, raster: Any, vehicle: Any, rate_hz: float, noise_seed: int) -> Any:
+def _depth_source(
+    spec: str, raster: Any, vehicle: Any, rate_hz: float, noise_seed: int, simulation: Simulation | None
+) -> Any:
     from edge_explorer.errors import EdgeExplorerError
-    from edge_explorer.runtime.depth_sources import RealSenseDepthSource, ReplayDepthSource, SimulatedDepthSource
-    from edge_explorer.sim.camera import CameraPose, DepthCamera
+    from edge_explorer.runtime.depth_sources import RealSenseDepthSource, ReplayDepthSource
 
     if spec == "sim":
-        camera = DepthCamera(raster)
-        truth = vehicle.true_pose()
-        camera.render(CameraPose(truth.x_m, truth.y_m, 1.7, truth.yaw_rad))  # load the renderer before the flight
-        return SimulatedDepthSource(camera, vehicle, rate_hz=rate_hz, seed=noise_seed)
+        if simulation is None:
+            raise EdgeExplorerError("--source sim renders from the simulated vehicle, which this flight does not fly")
+        return simulation.depth_source(raster, vehicle, rate_hz, noise_seed)
     if spec.startswith("replay:"):
         return ReplayDepthSource(Path(spec.removeprefix("replay:")), realtime=True)
     if spec == "realsense":

@@ -115,7 +115,7 @@ def write_summary(out: Path, summary: dict[str, Any], daemon: Any, raster: Any) 
     The picture is drawn in a fresh interpreter (:func:`in_fresh_process`) from plain arrays: matplotlib and its
     figure (~65 MB resident) never load into the daemon's process, and the drawing process holds numpy and
     matplotlib only, not a copy of the daemon (a drone's daemon would not draw at all)."""
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
 
     write_json(out / "summary.json", summary)
     view = daemon.view

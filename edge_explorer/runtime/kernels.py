@@ -15,7 +15,7 @@ So a flight does, in this order, before its other imports (pymavlink, LiteRT, th
    (``madvise(MADV_DONTNEED)``). They are clean file pages: they stay in the page cache and fault back in if a
    kernel is ever compiled again, so nothing can break — a kernel first called later only costs its load again.
 
-The start pose's child process (:func:`edge_explorer.runtime.flight._start_pose`) does step 1 first on a fresh
+The start pose's child process (:func:`edge_explorer.sim.flight._start_pose`) does step 1 first on a fresh
 install, so numba compiles (LLVM's working memory, ~0.5 s) in that child and the daemon only loads.
 """
 
@@ -28,6 +28,7 @@ import os
 import re
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -39,32 +40,39 @@ _released = False
 _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(.*)$")
 
 
-def warm_kernels(raster: Any) -> None:
-    """Run each numba kernel of a simulated flight over ``raster`` once, with the flight's argument types: the depth
-    camera's render, fusion into both voxel maps, projection, the coverage count, the follower's swept-path test and
-    the learned planner's map inflation (numba keeps one machine-code version per argument types, so these calls
-    compile or load exactly those; tests/runtime/test_kernels.py checks the default flight loads no other)."""
+def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> None:
+    """Run each numba kernel of a flight over ``raster`` once, with the flight's argument types: with ``camera``
+    (raster → the simulated depth camera, :meth:`edge_explorer.sim.flight.SimulatedFlight.camera`) the camera's
+    render, then fusion into both voxel maps, projection, the coverage count, the follower's swept-path test and the
+    learned planner's map inflation (numba keeps one machine-code version per argument types, so these calls compile
+    or load exactly those; tests/runtime/test_kernels.py checks the default flight loads no other). Without a camera
+    (a real drone's) the fusion takes a flat frame of the D435's decimated stream: the same argument types."""
     import numpy as np
 
     from edge_explorer.mapping.ego import inflate_codes
     from edge_explorer.mapping.metrics import map_metrics
     from edge_explorer.mapping.projection import HeightBand, project
     from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
-    from edge_explorer.sim.camera import CameraPose, DepthCamera
-    from edge_explorer.sim.dynamics import swept_path_blocked
+    from edge_explorer.vehicle.camera import CameraConfig, CameraPose
+    from edge_explorer.vehicle.dynamics import swept_path_blocked
     from edge_explorer.world.grid import LOW_RES_M
 
     band = HeightBand()  # the daemon's defaults (DaemonConfig.band, .fusion)
-    camera = DepthCamera(raster)
     grid = raster.grid
     row, col = (int(v) for v in np.argwhere(raster.interior)[0])
     x_m, y_m = (float(v) for v in grid.center_of(row, col))
     pose = CameraPose(x_m, y_m, band.flight_z_m, 0.0)
-    depth_m = camera.render(pose)
+    if camera is not None:
+        renderer = camera(raster)
+        intrinsics = renderer.config.intrinsics
+        depth_m = renderer.render(pose)
+    else:
+        intrinsics = CameraConfig().intrinsics
+        depth_m = np.full(intrinsics.shape, 2.0, dtype=np.float32)
     # A 2 m box around the pose (the flight's maps cover the building; the kernels' argument types are the same).
     region = VoxelRegion((x_m - 1.0, y_m - 1.0, band.min_z_m - LOW_RES_M), (2.0, 2.0, 1.4))
     maps = VoxelMaps(region, FusionConfig())
-    maps.fuse(depth_m, camera.config.intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
+    maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
     high, high_grid = project(maps.high, band)
     low, _ = project(maps.low, band)
     coarse = raster.coarsened(LOW_RES_M)

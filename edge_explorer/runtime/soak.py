@@ -22,9 +22,12 @@ import time
 import traceback
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from edge_explorer.runtime.options import RunOptions
+
+if TYPE_CHECKING:
+    from edge_explorer.runtime.flight import Simulation
 
 MAX_RSS_GROWTH = 0.05  # RSS growth allowed from the sixth of the soak to its end
 DEFAULT_FLIGHT_TIME_LIMIT_S = 600.0  # a flight's exploration time unless --time-limit-s says otherwise
@@ -81,9 +84,12 @@ def rss_growth(samples: list[tuple[float, float, float, float]], duration_s: flo
     return later[-1][1] / later[0][1] - 1.0
 
 
-def run_soak(options: RunOptions, duration_s: float, sample_every_s: float = 5.0) -> int:
+def run_soak(
+    options: RunOptions, duration_s: float, sample_every_s: float = 5.0, simulation: Simulation | None = None
+) -> int:
     """Fly flights back to back for ``duration_s``; write ``soak.json`` and ``soak.png`` in ``options.out_dir``.
-    Returns the exit code: 0 when the soak passed (see the module docstring), 1 otherwise."""
+    Returns the exit code: 0 when the soak passed (see the module docstring), 1 otherwise. ``simulation``: the
+    simulated drone the flights fly (:class:`edge_explorer.sim.flight.SimulatedFlight`, built by the caller)."""
     from edge_explorer.runtime.flight import fly
 
     out = options.out_dir
@@ -103,7 +109,7 @@ def run_soak(options: RunOptions, duration_s: float, sample_every_s: float = 5.0
             )
             record: dict[str, Any] = {"flight": k, "start_s": time.monotonic() - start_s}
             try:
-                summary = fly(flight)
+                summary = fly(flight, simulation)
             except Exception as exc:  # noqa: BLE001 - a crash is the soak's finding: recorded, then the soak ends
                 traceback.print_exc()
                 flights.append({**record, "crash": f"{type(exc).__name__}: {exc}"})
@@ -173,7 +179,7 @@ def _percent(value: float | None) -> str:
 
 
 def _write_outputs(out: Path, report: dict[str, Any]) -> None:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.runtime.flight_summary import in_fresh_process
 
     write_json(out / "soak.json", report)

@@ -7,7 +7,7 @@ with the six discrete actions while the planar sensor fills the two-level observ
 
 Spaces
 ------
-* action: ``Discrete(6)`` — :class:`~edge_explorer.sim.dynamics.Action` (0 hover, 1 turn right, 2 turn left,
+* action: ``Discrete(6)`` — :class:`~edge_explorer.vehicle.dynamics.Action` (0 hover, 1 turn right, 2 turn left,
   3 forward, 4 turn right + forward, 5 turn left + forward). Anything else raises
   ``gymnasium.error.InvalidAction``.
 * observation: ``Dict`` built by :func:`edge_explorer.mapping.ego.encode_observation` (the daemon uses the same):
@@ -23,7 +23,7 @@ Spaces
 Motion
 ------
 Each action moves the vehicle by the shipped action table's (previous action, action) entry
-(:mod:`edge_explorer.sim.dynamics`, momentum included) plus Gaussian noise when ``motion_noise`` is on. After a
+(:mod:`edge_explorer.vehicle.dynamics`, momentum included) plus Gaussian noise when ``motion_noise`` is on. After a
 collision the vehicle has stopped, so its next step starts as if after hover.
 
 Reward
@@ -66,10 +66,10 @@ from edge_explorer.mapping import ego
 from edge_explorer.mapping.metrics import MapMetrics, map_metrics
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
-from edge_explorer.sim import dynamics
-from edge_explorer.sim.dynamics import NUM_ACTIONS, Action, ActionTable
 from edge_explorer.sim.episode import move, previous_after
-from edge_explorer.sim.sensor import SensorConfig, scan
+from edge_explorer.vehicle import dynamics
+from edge_explorer.vehicle.dynamics import NUM_ACTIONS, Action, ActionTable
+from edge_explorer.vehicle.sensor import SensorConfig, scan
 from edge_explorer.world.flight_space import FlightClearance, reachable_cells
 from edge_explorer.world.grid import (
     CELL_DTYPE,

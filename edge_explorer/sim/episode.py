@@ -2,7 +2,7 @@
 
 Every simulated flight of a planner — the benchmark's runs (:mod:`edge_explorer.bench.explore`), the goal policy's
 demonstrations (:mod:`edge_explorer.learn.goal_demos`), the goal environment's replay of the agent's goals
-(:mod:`edge_explorer.sim.goal_env`) — runs the same loop, :class:`Episode`:
+(:mod:`edge_explorer.learn.goal_env`) — runs the same loop, :class:`Episode`:
 
 1. stop with ``"goal"`` when coverage *and* correct coverage have reached the coverage goal;
 2. stop with ``"step_cap"`` when the simulator has taken ``max_steps`` steps since its reset;
@@ -29,8 +29,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.sim import dynamics
-from edge_explorer.sim.dynamics import ActionTable
+from edge_explorer.vehicle import dynamics
+from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.grid import GridSpec
 
 Pose = tuple[float, float, float]  # x_m, y_m, yaw_rad in the plan's map frame

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_explorer.runtime.mavlink_link import Pose
-from edge_explorer.sim.dynamics import wrap_angle_rad
+from edge_explorer.vehicle.dynamics import wrap_angle_rad
 from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster
 
 GRAVITY_MPS2 = 9.81

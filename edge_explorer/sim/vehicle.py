@@ -35,8 +35,8 @@ from edge_explorer.runtime.mavlink_link import (
     ned_to_map,
     yaw_ned_to_map,
 )
-from edge_explorer.sim.dynamics import wrap_angle_rad
 from edge_explorer.sim.quadrotor import QuadrotorModel, VehicleLimits
+from edge_explorer.vehicle.dynamics import wrap_angle_rad
 from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster
 
 log = logging.getLogger(__name__)

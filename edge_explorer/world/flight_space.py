@@ -42,7 +42,7 @@ from scipy import ndimage
 from edge_explorer.errors import PlanError
 from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster
 
-VIEW_RANGE_M = 4.5  # the planar sensor's range (sim.sensor.SensorConfig.range_m takes its default from here)
+VIEW_RANGE_M = 4.5  # the planar sensor's range (vehicle.sensor.SensorConfig.range_m takes its default from here)
 VIEW_SPACING_M = 0.5  # lattice of reachable view points for :func:`observable_cells`
 SLIT_CELLS = 2  # gaps in a wall up to 2·SLIT_CELLS cells (0.20 m) are closed before looking through them
 _RAY_GAP_CELLS = 0.9  # neighbouring rays at most this far apart at full range: no cell in range is skipped

@@ -217,7 +217,8 @@ def test_runtime_path_imports_no_training_framework() -> None:
     """The modules of this runtime path load without torch, stable-baselines3 or TensorFlow (docs/design.md §2)."""
     code = (
         "import sys\n"
-        "import edge_explorer.backends.chain, edge_explorer.runtime.depth_sources, edge_explorer.sim.vehicle\n"
+        "import edge_explorer.backends.chain, edge_explorer.runtime.depth_sources, edge_explorer.runtime.daemon\n"
+        "import edge_explorer.vehicle.camera, edge_explorer.sim.vehicle, edge_explorer.sim.depth_source\n"
         "heavy = sorted(m for m in ('torch', 'tensorflow', 'stable_baselines3') if m in sys.modules)\n"
         "assert not heavy, heavy\n"
     )

@@ -10,6 +10,7 @@ from edge_explorer.bench.summary import failures, markdown_failures
 from edge_explorer.cli import main
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.registry import PlannerEntry
+from edge_explorer.sim import runs
 from edge_explorer.world.plan import save_plan_json
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
@@ -167,14 +168,14 @@ def test_runs_threshold_with_the_predictor_s_calibrated_thresholds(rooms, tmp_pa
     add_thresholds(card, {"t_f_max": 0.1, "t_o": 0.9})
     used = []
 
-    class RecordingEnv(explore.ExplorationEnv):
+    class RecordingEnv(runs.ExplorationEnv):
         def __init__(self, rasters, config, **kwargs):
             used.append(config.thresholds)
             super().__init__(rasters, config, **kwargs)
 
     config = explore.BenchConfig(max_steps=2)
     spec = explore.plan_specs([rooms], ["frontier+pred"], runs=1, seed=0, config=config, predictor=str(card))[0]
-    monkeypatch.setattr(explore, "ExplorationEnv", RecordingEnv)
+    monkeypatch.setattr(runs, "ExplorationEnv", RecordingEnv)
     explore.run_episode(rooms, spec, explore.load_predictor(str(card.parent)))
     explore.run_episode(rooms, spec, occupied_predictor)  # a predictor without a card: the defaults
     assert used == [ThresholdConfig(t_f_max=0.1, t_o=0.9), ThresholdConfig()]

@@ -89,7 +89,17 @@ def test_an_unreachable_ray_address_is_a_one_line_error():
         list(map_units(square_or_die, [(Path("x"), 0)], ray="somewhere"))
 
 
-RUNTIME_PATH = ("runtime", "backends", "mapping", "predict", "plan", "world", "sim", "cluster")  # docs/design.md §2
+RUNTIME_PATH = (
+    "runtime",
+    "backends",
+    "mapping",
+    "predict",
+    "plan",
+    "vehicle",
+    "world",
+    "sim",
+    "cluster",
+)  # docs/design.md §2
 
 
 def test_core_and_daemon_never_import_ray_or_torch_distributed():

@@ -14,8 +14,9 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from edge_explorer.commands import export as cli
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.export import calibration, cli, gates, pipeline
+from edge_explorer.export import calibration, gates, pipeline
 from edge_explorer.export.networks import policy_network
 from edge_explorer.export.onnx_formats import export_fp32, quantize_int8
 from edge_explorer.export.recipe import load_recipe

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from edge_explorer.learn.goal_env import GoalEnv
 from edge_explorer.sim.env import EnvConfig
-from edge_explorer.sim.goal_env import GoalEnv
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 

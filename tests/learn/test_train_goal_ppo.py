@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from edge_explorer.learn.goal_env import NUM_GOALS
 from edge_explorer.learn.goal_net import GoalNet, load_goal_net, save_goal_net
 from edge_explorer.learn.train_goal_ppo import GoalActorCritic, PPOConfig, train
-from edge_explorer.sim.goal_env import NUM_GOALS
 from edge_explorer.world.dataset import generate_dataset
 from tests.learn.test_goal_policy_training import TINY_NET
 

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge_explorer.mapping import ego
-from edge_explorer.sim.dynamics import Action
+from edge_explorer.vehicle.dynamics import Action
 from edge_explorer.world.grid import CELL_DTYPE, FREE, NON_FLIGHT, OCCUPIED, UNKNOWN
 
 codes_maps = st.tuples(st.integers(1, 30), st.integers(1, 30), st.integers(0, 2**32 - 1)).map(

@@ -5,7 +5,8 @@ import pytest
 
 from edge_explorer.mapping.projection import HeightBand, align_to_grid, project
 from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
-from edge_explorer.sim.camera import CameraConfig, CameraPose, DepthCamera
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraConfig, CameraPose
 from edge_explorer.world.grid import FREE, LOW_RES_M, OCCUPIED, UNKNOWN, GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan

@@ -16,7 +16,8 @@ import pytest
 
 from edge_explorer.mapping.projection import HeightBand, project
 from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
-from edge_explorer.sim.camera import CameraPose, DepthCamera
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraPose
 from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan

@@ -11,7 +11,7 @@ from edge_explorer.mapping.voxels import (
     VoxelRegion,
     depth_to_points,
 )
-from edge_explorer.sim.camera import CameraPose, DepthIntrinsics
+from edge_explorer.vehicle.camera import CameraPose, DepthIntrinsics
 from edge_explorer.world.grid import GridSpec
 
 HIT, MISS, CLAMP_MIN, CLAMP_MAX = 847, -405, -1992, 3476  # OctoMap defaults in 1/1000 log-odds

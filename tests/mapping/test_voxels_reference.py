@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion, depth_to_points
-from edge_explorer.sim.camera import CameraConfig, CameraPose, DepthCamera, DepthIntrinsics
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import CameraConfig, CameraPose, DepthIntrinsics
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 

@@ -7,8 +7,8 @@ import pytest
 
 from edge_explorer.mapping import ego
 from edge_explorer.plan.follow import FollowConfig, FreeSpace, arrived, choose_action, remaining_path_m
-from edge_explorer.sim import dynamics
-from edge_explorer.sim.dynamics import Action, load_action_table
+from edge_explorer.vehicle import dynamics
+from edge_explorer.vehicle.dynamics import Action, load_action_table
 from edge_explorer.world.grid import FREE, NON_FLIGHT, OCCUPIED, GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan

@@ -108,7 +108,7 @@ def test_hovering_goal_after_goal_backs_off_into_the_open(rooms, monkeypatch):
     hover for dozens of steps while its drift carried it to the wall (a real plan, issue #18). After a run of
     hovers over any goals next to a wall the planner backs off into open space instead."""
     from edge_explorer.plan import frontier
-    from edge_explorer.sim.dynamics import Action
+    from edge_explorer.vehicle.dynamics import Action
 
     planner = NearestFrontier()
     planner._retreats_left = 0  # the back-offs for a follower stuck on its way are used up, as in that flight
@@ -129,7 +129,7 @@ def test_hovering_in_the_open_keeps_the_goal_loop(rooms, monkeypatch):
     """Away from walls a run of hovers is harmless (the drift has room): no back-off, which would change the
     flights of the learned policy, whose goals often make the follower wait."""
     from edge_explorer.plan import frontier
-    from edge_explorer.sim.dynamics import Action
+    from edge_explorer.vehicle.dynamics import Action
 
     planner = NearestFrontier()
     planner._retreats_left = 0
@@ -147,7 +147,7 @@ def test_a_motion_that_left_the_vehicle_where_it_was_is_not_flown_again_from_the
     """A collision stops the vehicle where it was (previous action HOVER, same pose). The map did not show what it
     hit (a wall not yet seen can lie within the robot radius of cells seen free), so the same map would choose the
     same motion again, step after step: a val flight made 43 collisions that way. It is blocked from that pose."""
-    from edge_explorer.sim.dynamics import Action
+    from edge_explorer.vehicle.dynamics import Action
 
     planner = NearestFrontier()
     maps, pose = west_room_seen(rooms), (0.6, 0.6, 0.0)
@@ -165,7 +165,7 @@ def test_a_motion_that_left_the_vehicle_where_it_was_is_not_flown_again_from_the
 
 def test_a_commanded_hover_is_not_a_collision(rooms, monkeypatch):
     from edge_explorer.plan import frontier
-    from edge_explorer.sim.dynamics import Action
+    from edge_explorer.vehicle.dynamics import Action
 
     planner = NearestFrontier()
     maps, pose = west_room_seen(rooms), (0.6, 0.6, 0.0)

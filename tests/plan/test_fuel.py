@@ -9,7 +9,7 @@ import pytest
 from edge_explorer.plan.frontier import frontier_clusters
 from edge_explorer.plan.fuel import FuelPlanner, open_tour, visible_counts
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.sim.sensor import SensorConfig
+from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.grid import GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan

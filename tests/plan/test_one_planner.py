@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from edge_explorer.bench import explore
+from edge_explorer.learn.goal_env import GoalEnv
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS as G
 from edge_explorer.plan.goal_grid import GoalOptions
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner, weighted_scores, with_view_gain
@@ -16,7 +17,6 @@ from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
 from edge_explorer.runtime.daemon import Daemon, DaemonConfig
 from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
 from edge_explorer.sim.env import EnvConfig
-from edge_explorer.sim.goal_env import GoalEnv
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 from tests.plan.test_policy import nearest_first_scores

@@ -15,7 +15,7 @@ from edge_explorer.backends.chain import load_model
 from edge_explorer.mapping.ego import NUM_ACTIONS, OBSERVATION_WINDOW_CELLS, observation_from_maps
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 from edge_explorer.plan.policy import PolicyModelError, PolicyRuntime
-from edge_explorer.sim.dynamics import Action
+from edge_explorer.vehicle.dynamics import Action
 from edge_explorer.world.grid import CELL_DTYPE, FREE
 
 ORDER = ("edgetpu", "litert-cpu", "onnxruntime-cpu")

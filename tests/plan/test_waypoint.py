@@ -8,8 +8,8 @@ import pytest
 from edge_explorer.mapping import ego
 from edge_explorer.plan.follow import FollowConfig, FreeSpace
 from edge_explorer.plan.waypoint import HOLD, WaypointPlanner, action_pose, cruise_velocity, path_home
-from edge_explorer.sim import dynamics
-from edge_explorer.sim.dynamics import Action, load_action_table
+from edge_explorer.vehicle import dynamics
+from edge_explorer.vehicle.dynamics import Action, load_action_table
 from edge_explorer.world.grid import CELL_DTYPE, FREE, NON_FLIGHT, OCCUPIED, UNKNOWN, GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan

@@ -7,7 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from edge_explorer.profiling.device_profile import load_profile
 from edge_explorer.profiling.estimate import (
     FAIL,
     NA,
@@ -21,6 +20,7 @@ from edge_explorer.profiling.estimate import (
     verdict,
     verdicts,
 )
+from edge_explorer.runtime.device_profile import load_profile
 
 HOST = load_profile("host")
 NUC = load_profile("nuc10-i7-10710u")

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from edge_explorer.cli import main
-from edge_explorer.profiling.device_profile import load_profile
 from edge_explorer.profiling.html_report import write_html
 from edge_explorer.profiling.loop import RECORDED_TIMINGS, LoopOptions, measure_loop
 from edge_explorer.profiling.models import bench_models
 from edge_explorer.profiling.report import build_report, markdown_summary
 from edge_explorer.runtime.depth_sources import ReplayDepthSource
+from edge_explorer.runtime.device_profile import load_profile
 from edge_explorer.world.plan import save_plan_json
 from tests.conftest import two_room_plan
 from tests.predict.test_predictor import write_predictor_model

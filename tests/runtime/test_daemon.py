@@ -47,10 +47,12 @@ from edge_explorer.runtime.daemon import (
     choose_models,
     frame_problem,
 )
-from edge_explorer.runtime.depth_sources import DepthFrame, SimulatedDepthSource
+from edge_explorer.runtime.depth_sources import DepthFrame
 from edge_explorer.runtime.mavlink_link import LinkConfig, LinkStatus, MavlinkLink, Pose
-from edge_explorer.sim.camera import CameraPose, DepthCamera, DepthIntrinsics
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.sim.depth_source import SimulatedDepthSource
 from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, VehicleState
+from edge_explorer.vehicle.camera import CameraPose, DepthIntrinsics
 from edge_explorer.world.catalog import plan_to_raster
 from edge_explorer.world.grid import FREE, OCCUPIED
 from edge_explorer.world.plan import save_plan_json
@@ -706,7 +708,7 @@ def test_the_start_pose_child_compiles_every_kernel_the_flight_runs(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache"), "NUMBA_DEBUG_CACHE": "1"}
     plan = tmp_path / "rooms.json"
     save_plan_json(two_room_plan(), plan)
-    child = f"from edge_explorer.runtime.flight import _draw_start_pose; _draw_start_pose({str(plan)!r}, 0)"
+    child = f"from edge_explorer.sim.flight import _draw_start_pose; _draw_start_pose({str(plan)!r}, 0)"
     warm = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=240, env=env)
     assert warm.returncode == 0, warm.stderr
     assert "data saved" in warm.stdout + warm.stderr  # the child compiled into the empty cache

@@ -31,8 +31,8 @@ from edge_explorer.runtime.daemon import decisions as decisions_module
 from edge_explorer.runtime.daemon import phases as phases_module
 from edge_explorer.runtime.depth_sources import DepthFrame
 from edge_explorer.runtime.mavlink_link import LinkError, LinkStatus, Pose
-from edge_explorer.sim.camera import DepthIntrinsics
-from edge_explorer.sim.dynamics import Action, load_action_table
+from edge_explorer.vehicle.camera import DepthIntrinsics
+from edge_explorer.vehicle.dynamics import Action, load_action_table
 from edge_explorer.world.grid import FREE, GridSpec
 
 CONFIG = DaemonConfig(max_hold_s=5.0, home_hover_s=2.0, return_home=False)

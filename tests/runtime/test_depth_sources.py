@@ -16,11 +16,12 @@ from edge_explorer.runtime.depth_sources import (
     RealSenseDepthSource,
     Recorder,
     ReplayDepthSource,
-    SimulatedDepthSource,
 )
 from edge_explorer.runtime.mavlink_link import Pose
-from edge_explorer.sim.camera import CameraConfig, CameraPose, DepthCamera, DepthIntrinsics
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.sim.depth_source import SimulatedDepthSource
 from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig
+from edge_explorer.vehicle.camera import CameraConfig, CameraPose, DepthIntrinsics
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 

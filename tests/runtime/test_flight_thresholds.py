@@ -9,6 +9,7 @@ from edge_explorer.runtime import daemon as daemon_module
 from edge_explorer.runtime.daemon import choose_models
 from edge_explorer.runtime.flight import fly
 from edge_explorer.runtime.options import RunOptions
+from edge_explorer.sim.flight import SimulatedFlight
 from edge_explorer.world.plan import save_plan_json
 from tests.conftest import two_room_plan
 from tests.predict.test_predictor import add_thresholds, write_predictor_model
@@ -44,5 +45,5 @@ def test_a_flight_s_daemon_config_takes_the_predictor_s_thresholds(tmp_path, mon
     save_plan_json(two_room_plan(), plan)
     options = RunOptions(tmp_path / "out", "frontier", plan=str(plan), models_dir=tmp_path / "models", progress=False)
     with pytest.raises(_Built):
-        fly(options)
+        fly(options, SimulatedFlight())
     assert seen == [CALIBRATED if calibrated else ThresholdConfig()]

@@ -38,7 +38,7 @@ def test_the_flight_entry_point_imports_nothing_heavy():
     them in its own order, the flight's kernels and LLVM's release first."""
     script = (
         "import sys\n"
-        "import edge_explorer.cli, edge_explorer.runtime.cli\n"
+        "import edge_explorer.cli, edge_explorer.commands.runtime\n"
         "import edge_explorer.runtime.flight, edge_explorer.runtime.kernels\n"
         f"print('HEAVY', sorted(m for m in sys.modules if m.split('.')[0] in {HEAVY!r}))\n"
     )
@@ -72,8 +72,8 @@ def test_llvm_pages_are_released_and_fault_back_when_needed():
 
 @pytest.mark.slow
 def test_the_start_pose_drawn_without_jit_is_the_benchmarks():
-    from edge_explorer.bench.explore import start_pose
-    from edge_explorer.runtime.flight import _start_pose
+    from edge_explorer.sim.flight import _start_pose
+    from edge_explorer.sim.starts import start_pose
     from edge_explorer.world.catalog import load_building
 
     for plan, seed in (("A", 0), ("C", 7)):

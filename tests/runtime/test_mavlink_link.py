@@ -29,9 +29,9 @@ from edge_explorer.runtime.mavlink_link import (
     yaw_map_to_ned,
     yaw_ned_to_map,
 )
-from edge_explorer.sim.camera import body_rotation
 from edge_explorer.sim.quadrotor import VehicleLimits
 from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, _quaternion_from_euler
+from edge_explorer.vehicle.camera import body_rotation
 
 FAST = VehicleLimits(max_speed_mps=2.0, max_accel_mps2=4.0, max_yaw_rate_rad_s=math.radians(180))
 START = (1.0, 2.0, 0.0)

@@ -3,14 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from edge_explorer.sim.camera import (
-    R_BODY_FROM_OPTICAL,
-    CameraConfig,
-    CameraPose,
-    DepthCamera,
-    DepthIntrinsics,
-    DepthNoise,
-)
+from edge_explorer.sim.camera import DepthCamera
+from edge_explorer.vehicle.camera import R_BODY_FROM_OPTICAL, CameraConfig, CameraPose, DepthIntrinsics, DepthNoise
 from edge_explorer.world.plan import FloorPlan, Furniture, Rect
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan

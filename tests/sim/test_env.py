@@ -11,8 +11,8 @@ from gymnasium.utils.env_checker import check_env
 from edge_explorer.errors import PlanError
 from edge_explorer.mapping import ego
 from edge_explorer.predict.thresholding import ThresholdConfig
-from edge_explorer.sim.dynamics import Action
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.vehicle.dynamics import Action
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN
 from edge_explorer.world.plan import FloorPlan, Rect
 from edge_explorer.world.raster import rasterize

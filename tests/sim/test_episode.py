@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-from edge_explorer.sim.dynamics import Action, load_action_table
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.sim.episode import Episode, move, previous_after
+from edge_explorer.vehicle.dynamics import Action, load_action_table
 from edge_explorer.world.raster import configuration_space, rasterize
 from tests.conftest import two_room_plan
 

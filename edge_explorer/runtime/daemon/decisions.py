@@ -52,7 +52,7 @@ from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
 from edge_explorer.runtime.daemon.state import FlightMaps
 from edge_explorer.runtime.mavlink_link import MavlinkLink
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.sim.dynamics import Action, ActionTable
+from edge_explorer.vehicle.dynamics import Action, ActionTable
 from edge_explorer.world.grid import GridSpec
 
 log = logging.getLogger(__name__)

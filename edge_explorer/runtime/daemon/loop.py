@@ -28,7 +28,7 @@ from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
 from edge_explorer.runtime.daemon.watchdog import InputWatchdog
 from edge_explorer.runtime.depth_sources import DepthSource, Recorder
 from edge_explorer.runtime.mavlink_link import MavlinkLink
-from edge_explorer.sim.dynamics import ActionTable, load_action_table
+from edge_explorer.vehicle.dynamics import ActionTable, load_action_table
 
 log = logging.getLogger(__name__)
 

@@ -32,7 +32,7 @@ from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
 from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
 from edge_explorer.runtime.mavlink_link import LinkError, MavlinkLink
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.sim.dynamics import ActionTable
+from edge_explorer.vehicle.dynamics import ActionTable
 
 log = logging.getLogger(__name__)
 

@@ -30,7 +30,7 @@ from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
 from edge_explorer.runtime.depth_sources import DepthFrame, Recorder
 from edge_explorer.runtime.mavlink_link import LinkStatus, MavlinkLink
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.sim.camera import CameraPose
+from edge_explorer.vehicle.camera import CameraPose
 
 log = logging.getLogger(__name__)
 

@@ -19,7 +19,7 @@ from edge_explorer.runtime.mavlink_link.frames import (
 class Pose:
     """Vehicle pose in the ``map`` frame at ``stamp_s`` (host ``time.monotonic()`` seconds); FLU attitude.
 
-    The attitude fields match :class:`edge_explorer.sim.camera.CameraPose` (positive pitch = nose down).
+    The attitude fields match :class:`edge_explorer.vehicle.camera.CameraPose` (positive pitch = nose down).
     """
 
     stamp_s: float

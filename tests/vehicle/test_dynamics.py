@@ -1,4 +1,4 @@
-"""Action dynamics and the shipped action table (edge_explorer.sim.dynamics)."""
+"""Action dynamics and the shipped action table (edge_explorer.vehicle.dynamics)."""
 
 import json
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from edge_explorer.errors import EdgeExplorerError
-from edge_explorer.sim import dynamics
-from edge_explorer.sim.dynamics import Action, VehicleModel
+from edge_explorer.vehicle import dynamics
+from edge_explorer.vehicle.dynamics import Action, VehicleModel
 from edge_explorer.world.grid import GridSpec
 
 

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def export_cli(args: argparse.Namespace) -> int:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.export.pipeline import run_export
     from edge_explorer.export.recipe import check_inputs_exist, load_recipe
 

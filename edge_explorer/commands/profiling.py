@@ -20,7 +20,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 HOST_PROFILE = "host"
@@ -84,13 +84,13 @@ def _profile(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from edge_explorer.backends.chain import BACKENDS
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.errors import EdgeExplorerError
-    from edge_explorer.profiling.device_profile import load_profile
     from edge_explorer.profiling.html_report import write_html
     from edge_explorer.profiling.loop import RECORDED_TIMINGS, LoopOptions, measure_loop
     from edge_explorer.profiling.models import bench_models
     from edge_explorer.profiling.report import build_report, markdown_summary
+    from edge_explorer.runtime.device_profile import load_profile
 
     if args.warmup < 0:
         raise EdgeExplorerError(f"--warmup must be ≥ 0, got {args.warmup}")

@@ -1,4 +1,4 @@
-"""Goal selection as a gymnasium environment (edge_explorer.sim.goal_env)."""
+"""Goal selection as a gymnasium environment (edge_explorer.learn.goal_env)."""
 
 import math
 
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from edge_explorer.learn.goal_env import NUM_GOALS, GoalEnv
 from edge_explorer.plan.predictive import PredictiveConfig
 from edge_explorer.sim.env import EnvConfig
-from edge_explorer.sim.goal_env import NUM_GOALS, GoalEnv
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 

@@ -1,11 +1,11 @@
-"""Planar sensor (edge_explorer.sim.sensor)."""
+"""Planar sensor (edge_explorer.vehicle.sensor)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from edge_explorer.sim.sensor import SensorConfig, ray_count, scan
+from edge_explorer.vehicle.sensor import SensorConfig, ray_count, scan
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN
 from edge_explorer.world.plan import FloorPlan, Rect
 from edge_explorer.world.raster import rasterize

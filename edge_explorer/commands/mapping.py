@@ -20,13 +20,13 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 
 if TYPE_CHECKING:
     import numpy as np
 
     from edge_explorer.mapping.voxels import FusionConfig
-    from edge_explorer.sim.camera import CameraPose
+    from edge_explorer.vehicle.camera import CameraPose
     from edge_explorer.world.raster import PlanRaster
 
 DESCRIPTION = "Depth-frame mapping: benchmark voxel fusion and projection (optionally against OctoMap)."
@@ -63,7 +63,7 @@ def bench_trajectory(raster: PlanRaster, n_frames: int) -> list[CameraPose]:
     from scipy.sparse.csgraph import dijkstra
 
     from edge_explorer.errors import EdgeExplorerError
-    from edge_explorer.sim.camera import CameraPose
+    from edge_explorer.vehicle.camera import CameraPose
     from edge_explorer.world.raster import clearance_m, configuration_space
 
     free = configuration_space(raster, PATH_CLEARANCE_M)
@@ -252,7 +252,8 @@ def run_bench(
 
     from edge_explorer.mapping.projection import HeightBand, align_to_grid, project
     from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion, depth_to_points
-    from edge_explorer.sim.camera import CameraConfig, DepthCamera
+    from edge_explorer.sim.camera import DepthCamera
+    from edge_explorer.vehicle.camera import CameraConfig
     from edge_explorer.world.grid import LOW_RES_M
 
     camera_config = CameraConfig() if noise else CameraConfig(noise=None)
@@ -438,7 +439,7 @@ def save_bench_png(raster: PlanRaster, pictures: dict[str, Any], path: Path) -> 
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.world.catalog import load_building
 
     raster = load_building(args.plan)

@@ -10,7 +10,7 @@ import argparse
 import os
 from pathlib import Path
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 from edge_explorer.cluster.units import add_ray_argument
 from edge_explorer.predict.calibration import DEFAULT_LEVELS
 

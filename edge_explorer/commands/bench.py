@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 from edge_explorer.cluster.units import add_ray_argument
 
 DESCRIPTION = "Exploration benchmark: path length to 95 % coverage per building and method, coverage figure."
@@ -67,7 +67,7 @@ def _explore(args: argparse.Namespace) -> int:
         plot_curves,
         summarize,
     )
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.world.catalog import load_buildings
 
     methods = bench.parse_methods(args.methods)

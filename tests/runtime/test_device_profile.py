@@ -3,14 +3,14 @@ import tomllib
 
 import pytest
 
-from edge_explorer.profiling.device_profile import (
+from edge_explorer.runtime.daemon import choose_models
+from edge_explorer.runtime.device_profile import (
     PROFILES_DIR,
     ProfileError,
     list_profiles,
     load_profile,
     parse_profile,
 )
-from edge_explorer.runtime.daemon import choose_models
 from tests.predict.test_predictor import write_predictor_model
 
 REQUIRED = {"host", "nuc10-i7-10710u", "coral-usb", "voxl-snapdragon821"}

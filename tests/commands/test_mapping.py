@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from edge_explorer.cli import main
-from edge_explorer.mapping.cli import FLIGHT_HEIGHT_M, PATH_CLEARANCE_M, bench_trajectory
+from edge_explorer.commands.mapping import FLIGHT_HEIGHT_M, PATH_CLEARANCE_M, bench_trajectory
 from edge_explorer.world.plan import save_plan_json
 from edge_explorer.world.raster import clearance_m, rasterize
 from tests.conftest import two_room_plan

@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 from edge_explorer.cluster.units import add_ray_argument
 
 DESCRIPTION = "Floor plans: generate the dataset, show a plan, check plan files, draw a contact sheet."
@@ -59,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _generate(args: argparse.Namespace) -> int:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.world.dataset import generate_dataset
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -102,7 +102,7 @@ def _show(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.world.catalog import load_buildings_with_space
     from edge_explorer.world.grid import LOW_RES_M
 

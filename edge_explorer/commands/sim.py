@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from edge_explorer.cli import positive_int
+from edge_explorer.cli_support import positive_int
 
 DESCRIPTION = "2-D exploration simulator: benchmark its step rate, draw an episode."
 
@@ -50,7 +50,7 @@ def _bench(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from edge_explorer.cli import write_json
+    from edge_explorer.cli_support import write_json
     from edge_explorer.sim.env import STAGES, ExplorationEnv
     from edge_explorer.world.catalog import load_buildings
 
@@ -113,7 +113,7 @@ def _scripted_action(obs: dict[str, Any], rng: Any, turn: int) -> tuple[int, int
 
     A demonstration policy for ``sim show``, not an explorer: it wanders and turns away from what it sees.
     """
-    from edge_explorer.sim.dynamics import Action
+    from edge_explorer.vehicle.dynamics import Action
     from edge_explorer.world.grid import NON_FLIGHT, OCCUPIED
 
     high = obs["high"]

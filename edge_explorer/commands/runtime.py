@@ -4,7 +4,7 @@
 With no arguments it flies the embedded default: bundled building A, the shipped models when present (else the
 Nearest Frontier planner, said in the log), the ``host`` device profile, and the simulated PX4 vehicle with the
 simulated depth camera over real MAVLink on loopback UDP. The vehicle starts where the exploration benchmark starts
-on that building (:func:`edge_explorer.bench.explore.start_pose`), its odometry carries VIO-like noise and drift.
+on that building (:func:`edge_explorer.sim.starts.start_pose`), its odometry carries VIO-like noise and drift.
 
 Outputs in ``--out`` (default ``runs/run-<timestamp>/``): ``summary.json`` (coverage, correct coverage, path
 length, collisions, decisions, stage latency percentiles, CPU % of one core, peak RSS, backends), ``summary.png``
@@ -12,7 +12,9 @@ length, collisions, decisions, stage latency percentiles, CPU % of one core, pea
 both ways, readable by ``mavlogdump.py``) and ``daemon.log``.
 
 The flight itself is :func:`edge_explorer.runtime.flight.fly`, the bench :mod:`edge_explorer.runtime.acceptance`, the
-soak :mod:`edge_explorer.runtime.soak`; this module parses the arguments and hands them over. SIGINT and SIGTERM stop
+soak :mod:`edge_explorer.runtime.soak`; this module parses the arguments and hands them over, with the simulated
+drone (:class:`edge_explorer.sim.flight.SimulatedFlight`) unless ``--connect`` names a real autopilot: then nothing of
+the simulator is imported. SIGINT and SIGTERM stop
 the flight with a hold setpoint, write the summary and close the telemetry log (exit code 130 after SIGINT, 0 after
 SIGTERM: a requested, clean shutdown).
 """
@@ -26,10 +28,14 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from edge_explorer.plan.registry import PLANNERS
 from edge_explorer.runtime.options import MODELS_DIR, RunOptions
 from edge_explorer.runtime.soak import parse_duration
+
+if TYPE_CHECKING:
+    from edge_explorer.runtime.flight import Simulation
 
 DESCRIPTION = "The on-device exploration daemon: depth + odometry in, MAVLink position setpoints out."
 EXIT_SIGINT = 130
@@ -186,10 +192,18 @@ def _run(args: argparse.Namespace) -> int:
             raise EdgeExplorerError("--soak flies the simulated drone: drop --connect, --source and --record")
         from edge_explorer.runtime.soak import run_soak
 
-        return run_soak(options, args.soak)
-    summary = fly(options)
+        return run_soak(options, args.soak, simulation=_simulation())
+    summary = fly(options, _simulation() if args.connect is None else None)
     print(f"summary: {out / 'summary.json'}, {out / 'summary.png'}")
     return EXIT_SIGINT if summary["ending"] == "interrupted (SIGINT)" else 0
+
+
+def _simulation() -> Simulation:
+    """The simulated drone (vehicle, depth camera, start pose) a flight without ``--connect`` flies; only then is the
+    simulator imported."""
+    from edge_explorer.sim.flight import SimulatedFlight
+
+    return SimulatedFlight()
 
 
 def _log_to_stderr() -> None:
