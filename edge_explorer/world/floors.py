@@ -37,7 +37,7 @@ size spectrum of the free space that needs no room segmentation: the opening of 
 0.75, 1.5, 2.5 and 4 m, via a distance transform), ``wall face`` the length of free/blocked cell edges per m² of
 free floor. Version 1 is the first generator (office floors), version 2 this one::
 
-                                       v1 (32, median [range])  v2 (32)            real KTH (7)
+    median [range]                     v1 (32)               v2 (32)               real KTH (7)
     long side [m]                      94 [41–188]           128 [54–193]          263 [205–270]
     free floor [m²]                    2,047 [440–5,552]     4,439 [1,101–11,731]  11,101 [6,006–21,538]
     free area, width < 1.5 m           0.03 [0.02–0.03]      0.01 [0.00–0.03]      0.03 [0.02–0.03]
