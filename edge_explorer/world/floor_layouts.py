@@ -5,23 +5,27 @@ styles, so :mod:`edge_explorer.world.floors` hands it to the generator's geometr
 
 How a floor is laid out (canonical frame: the spine along x, everything in units of 0.05 m):
 
-* a **spine** of length ``L``: a double-loaded corridor (room row | corridor | room row) or, for a deep floor, a
-  **ring** (room row | corridor | inner block | corridor | room row, joined by cross corridors at both ends and
-  every 30–60 m), so the corridor is a loop;
+* a **spine** of length ``L``: a double-loaded corridor (room row | corridor | room row; one of the two rows holds
+  offices) or a **ring** (room row | corridor | inner block | corridor | room row, joined by cross corridors at both
+  ends and every 30–60 m), so the corridor is a loop;
 * **wings** off the spine (shape ``bar``: none, ``L``: one at an end, ``T``: one in the middle, ``U``: one at each
   end, ``comb``: several on one side, ``H``: on both sides), each a double-loaded corridor that opens into the
   spine's corridor (one corridor label: no wall, no door between them) and may end in an end room;
-* every room row is cut into **offices** (2.6–4.6 m wide), **labs** (6–12 m), **halls** (open areas of 10–20 m,
-  hubs like the corridor) and, every 50–100 m of room row (25–50 m of corridor), a **stairwell core**: a stair
-  room (kind ``core``, with a door) beside a lift shaft (kind ``shaft``) that the floor builder fills solid:
-  closed, not flyable inside.
+* every room row is cut into rooms: an **office row** (4.8–7 m deep) into **offices** (3.3–6 m wide) with a few
+  **labs** (8–16 m), **lecture** rooms (10–20 m) and **halls** (open-plan areas of 12–40 m, hubs like the
+  corridor); a **deep row** (10–18 m) into halls, lecture rooms and labs only — the wide open space of real
+  university and office floors (the floors' module docstring measures it); every 50–100 m of room row (25–50 m of
+  corridor) a **stairwell core**: a stair room (kind ``core``, with a door) beside a lift shaft (kind ``shaft``)
+  that the floor builder fills solid: closed, not flyable inside;
+* a ring's inner block is cut by its cross corridors into segments, each an **atrium** (one hall), one deep row, or
+  two rows back to back (each opening onto its own corridor).
 
 Corridor labels are one region; every other label is one rectangle. Labels of kind ``shaft`` must get no door.
 """
 
 from __future__ import annotations
 
-import math
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,63 +45,74 @@ SHAPES: tuple[str, ...] = ("bar", "L", "T", "U", "comb", "H")
 @dataclass(frozen=True)
 class FloorConfig:
     """Size ranges of a whole floor, in metres (see the module docstring of :mod:`edge_explorer.world.floors` for
-    how they compare with real office floors)."""
+    how they compare with real floors). Row mixes are ``(p_hall, p_lecture, p_lab)``; the rest of a row is offices
+    (office rows) or labs (deep rows); each floor scales them by a factor in [0.5, 1.5]."""
 
-    length_m: tuple[float, float] = (40.0, 200.0)  # the spine (the floor's long side); drawn log-uniformly
-    corridor_m: tuple[float, float] = (1.8, 2.6)
-    office_depth_m: tuple[float, float] = (4.2, 6.5)  # depth of a room row (perpendicular to the corridor)
-    lab_depth_m: tuple[float, float] = (6.5, 9.0)  # a row of labs is deeper (p_deep_row)
-    p_deep_row: float = 0.25
-    office_width_m: tuple[float, float] = (2.6, 4.6)
-    lab_width_m: tuple[float, float] = (6.0, 12.0)
-    hall_width_m: tuple[float, float] = (10.0, 20.0)
-    p_lab: float = 0.10  # per room of a row
-    p_hall: float = 0.025
+    length_m: tuple[float, float] = (40.0, 200.0)  # the spine (the floor's long side); drawn uniformly
+    corridor_m: tuple[float, float] = (2.4, 3.2)
+    office_depth_m: tuple[float, float] = (4.8, 7.0)  # depth of a room row (perpendicular to the corridor)
+    deep_depth_m: tuple[float, float] = (10.0, 18.0)  # a deep row: open-plan halls, lecture rooms, labs
+    p_deep_row: float = 0.6
+    office_width_m: tuple[float, float] = (3.3, 6.0)
+    lab_width_m: tuple[float, float] = (8.0, 16.0)
+    lecture_width_m: tuple[float, float] = (10.0, 20.0)
+    hall_width_m: tuple[float, float] = (12.0, 40.0)
+    office_row_mix: tuple[float, float, float] = (0.06, 0.04, 0.12)
+    deep_row_mix: tuple[float, float, float] = (0.40, 0.25, 0.35)
     core_spacing_m: tuple[float, float] = (50.0, 100.0)  # of room row: ~25–50 m of corridor
     stair_m: tuple[float, float] = (3.0, 4.2)
     shaft_m: tuple[float, float] = (1.8, 2.6)
-    p_ring: float = 0.3  # a ring (loop) corridor, when the floor is at least 50 m long
-    inner_depth_m: tuple[float, float] = (6.0, 14.0)  # the ring's inner block
+    p_ring: float = 0.35  # a ring (loop) corridor, when the floor is at least 50 m long
+    inner_depth_m: tuple[float, float] = (10.0, 26.0)  # the ring's inner block
+    p_atrium: float = 0.35  # an inner block segment (between cross corridors) left as one open atrium
     wing_length_m: tuple[float, float] = (10.0, 45.0)
     wing_gap_m: float = 8.0  # courtyard between neighbouring wings (the footprint keeps no holes)
     max_size_m: tuple[float, float] = (200.0, 120.0)  # long side, short side
 
 
 class _RowFiller:
-    """Cuts room rows into offices, labs, halls and cores; one per floor, so cores are spaced along all rows."""
+    """Cuts room rows into offices, labs, lecture rooms, halls and cores; one per floor, so cores are spaced along
+    all rows. A row at least ``deep_depth_m[0]`` deep is a deep row: no cellular offices, mostly open space."""
 
     def __init__(self, rng: np.random.Generator, cfg: FloorConfig, lay: Layout) -> None:
         self.rng, self.cfg, self.lay = rng, cfg, lay
         self.room_min = uniform_u(rng, cfg.office_width_m[0], cfg.office_width_m[0] + 0.6)
         self.room_max = max(self.room_min + _u(0.6), uniform_u(rng, cfg.office_width_m[1] - 1.0, cfg.office_width_m[1]))
-        self.p_lab = float(rng.uniform(0.3, 1.7)) * cfg.p_lab
-        self.p_hall = float(rng.uniform(0.0, 2.0)) * cfg.p_hall
+        self.mix = {
+            deep: tuple(p * float(rng.uniform(0.5, 1.5)) for p in (cfg.deep_row_mix if deep else cfg.office_row_mix))
+            for deep in (False, True)
+        }
         self.spacing = uniform_u(rng, *cfg.core_spacing_m)
         self.since_core = int(self.spacing * rng.uniform(0.3, 0.8))
 
-    def _pieces(self, length: int) -> list[tuple[str, int]]:
+    def _pieces(self, length: int, deep: bool) -> list[tuple[str, int]]:
         rng, cfg = self.rng, self.cfg
+        least = _u(cfg.lab_width_m[0]) // 2 if deep else self.room_min  # the narrowest piece a row leaves
+        kinds = (("hall", cfg.hall_width_m), ("lecture", cfg.lecture_width_m), ("lab", cfg.lab_width_m))
         out: list[tuple[str, int]] = []
         rest = length
         while rest > 0:
-            if rest < 2 * self.room_min:  # the last piece: one room takes the rest
+            if rest < 2 * least:  # the last piece: one room takes the rest
                 out.append(("room" if rest <= _u(cfg.lab_width_m[0]) else "lab", rest))
                 break
             stair, shaft = uniform_u(rng, *cfg.stair_m), uniform_u(rng, *cfg.shaft_m)
             r = rng.random()
-            if self.since_core >= self.spacing and rest >= stair + shaft + self.room_min:
+            if self.since_core >= self.spacing and rest >= stair + shaft + least:
                 pair = [("core", stair), ("shaft", shaft)]
                 out += pair if rng.random() < 0.5 else pair[::-1]
                 self.since_core = 0
                 rest -= stair + shaft
                 continue
-            if r < self.p_hall and rest >= _u(cfg.hall_width_m[0]) + self.room_min:
-                kind, width = "hall", uniform_u(rng, cfg.hall_width_m[0], min(cfg.hall_width_m[1], rest / _U))
-            elif r < self.p_hall + self.p_lab and rest >= _u(cfg.lab_width_m[0]) + self.room_min:
+            if deep:
                 kind, width = "lab", uniform_u(rng, cfg.lab_width_m[0], min(cfg.lab_width_m[1], rest / _U))
             else:
                 kind, width = "room", int(rng.integers(self.room_min, self.room_max + 1))
-            if rest - width < self.room_min:
+            for p, (k, (lo, hi)) in zip(itertools.accumulate(self.mix[deep]), kinds, strict=True):
+                if r < p:
+                    if rest >= _u(lo) + least:
+                        kind, width = k, uniform_u(rng, lo, min(hi, rest / _U))
+                    break
+            if rest - width < least:
                 width = rest
             out.append((kind, width))
             self.since_core += width
@@ -108,18 +123,21 @@ class _RowFiller:
         """Cut the row ``box`` across its length (``along_x``: the row runs along x) and add the rooms."""
         x0, y0, x1, y1 = box
         pos = x0 if along_x else y0
-        for kind, width in self._pieces((x1 - x0) if along_x else (y1 - y0)):
+        deep = ((y1 - y0) if along_x else (x1 - x0)) >= _u(self.cfg.deep_depth_m[0])
+        for kind, width in self._pieces((x1 - x0) if along_x else (y1 - y0), deep):
             self.lay.add(kind, (pos, y0, pos + width, y1) if along_x else (x0, pos, x1, pos + width))
             pos += width
 
     def end_block(self, box: Box, along_x: bool) -> None:
-        """A block at the end of a corridor: one room, a lab, or a core when it is long enough."""
+        """A block at the end of a corridor: cut like a row when long enough, else one room, lab or hall."""
         x0, y0, x1, y1 = box
-        length = (x1 - x0) if along_x else (y1 - y0)
+        length, short = ((x1 - x0), (y1 - y0)) if along_x else ((y1 - y0), (x1 - x0))
         if length >= 2 * self.room_min + _u(1.0) and self.rng.random() < 0.6:
             self.fill(box, along_x)
+        elif min(length, short) >= _u(self.cfg.hall_width_m[0]) and self.rng.random() < 0.5:
+            self.lay.add("hall", box)
         else:
-            self.lay.add("lab" if length * min(x1 - x0, y1 - y0) > _u(6.0) ** 2 else "room", box)
+            self.lay.add("lab" if length * short > _u(6.0) ** 2 else "room", box)
 
 
 @dataclass(frozen=True)
@@ -138,19 +156,21 @@ class _Wing:
 
 
 def _depth(rng: np.random.Generator, cfg: FloorConfig) -> int:
-    return uniform_u(rng, *(cfg.lab_depth_m if rng.random() < cfg.p_deep_row else cfg.office_depth_m))
+    return uniform_u(rng, *(cfg.deep_depth_m if rng.random() < cfg.p_deep_row else cfg.office_depth_m))
 
 
-def _log_uniform_u(rng: np.random.Generator, lo_m: float, hi_m: float) -> int:
-    return _u(math.exp(rng.uniform(math.log(lo_m), math.log(hi_m))))
+def _wings(rng: np.random.Generator, cfg: FloorConfig, shape: str, length: int, cw: int, room: int) -> list[_Wing]:
+    """The wings of ``shape``; ``room``: how far a wing may reach beyond the spine (the short side's limit)."""
+    room //= 2 if shape == "H" else 1
 
-
-def _wings(rng: np.random.Generator, cfg: FloorConfig, shape: str, length: int, cw: int) -> list[_Wing]:
     def wing(x: int, up: bool, align: str = "left") -> _Wing:
         """A wing whose left edge is ``x`` (align "left"), whose right edge is ``x`` ("right") or centred on x."""
         left, right = _depth(rng, cfg), _depth(rng, cfg)
         wcw = min(cw, uniform_u(rng, cfg.corridor_m[0], cfg.corridor_m[1]))
-        wl = uniform_u(rng, cfg.wing_length_m[0], min(cfg.wing_length_m[1], max(length / _U * 0.6, 12.0)))
+        hi = min(cfg.wing_length_m[1], max(length / _U * 0.6, 12.0), room / _U)
+        if hi < cfg.wing_length_m[0]:
+            raise Retry("no room for a wing within the short side")
+        wl = uniform_u(rng, cfg.wing_length_m[0], hi)
         end = _depth(rng, cfg) if rng.random() < 0.6 and wl >= _u(10.0) else 0
         width = left + wcw + right
         x = {"left": x, "right": x - width, "centre": x - width // 2}[align]
@@ -186,14 +206,16 @@ def floor_layout(rng: np.random.Generator, cfg: FloorConfig | None = None) -> tu
     """One whole floor's layout, its shape (one of :data:`SHAPES`) and whether its spine is a ring corridor;
     deterministic given ``rng``."""
     cfg = cfg or FloorConfig()
-    length = _log_uniform_u(rng, *cfg.length_m)
+    length = uniform_u(rng, *cfg.length_m)
     cw = uniform_u(rng, *cfg.corridor_m)
     shape = SHAPES[int(rng.integers(len(SHAPES)))]
     ring = length >= _u(50.0) and rng.random() < cfg.p_ring
-    d_lo, d_hi = _depth(rng, cfg), _depth(rng, cfg)
+    d_lo, d_hi = _depth(rng, cfg), uniform_u(rng, *cfg.office_depth_m)  # one spine row at least holds offices
+    if rng.random() < 0.5:
+        d_lo, d_hi = d_hi, d_lo
     d_in = uniform_u(rng, *cfg.inner_depth_m) if ring else 0
     spine_depth = d_lo + cw + (d_in + cw if ring else 0) + d_hi
-    wings = _wings(rng, cfg, shape, length, cw)
+    wings = _wings(rng, cfg, shape, length, cw, _u(cfg.max_size_m[1]) - spine_depth)
     below = max([w.length for w in wings if not w.up], default=0)
     above = max([w.length for w in wings if w.up], default=0)
     h = below + spine_depth + above
@@ -220,11 +242,15 @@ def floor_layout(rng: np.random.Generator, cfg: FloorConfig | None = None) -> tu
             del cuts[-2]
         for c in cuts:
             lay.add("corridor", (c, y_lo + cw, c + cw, y_hi - cw), corridor)
-        two_rows = d_in >= 2 * _u(cfg.office_depth_m[0])
+        # each segment of the inner block: an atrium, one deep row, or two rows back to back (one per corridor)
         mid = y_lo + cw + d_in // 2
         for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-            rows = [(y_lo + cw, mid), (mid, y_hi - cw)] if two_rows else [(y_lo + cw, y_hi - cw)]
-            for r0, r1 in rows:
+            r = rng.random()
+            if r < cfg.p_atrium and b - a - cw <= _u(cfg.hall_width_m[1] * 1.5):
+                lay.add("hall", (a + cw, y_lo + cw, b, y_hi - cw))
+                continue
+            two_rows = d_in >= 2 * _u(cfg.office_depth_m[0]) and r < (1.0 + cfg.p_atrium) / 2
+            for r0, r1 in [(y_lo + cw, mid), (mid, y_hi - cw)] if two_rows else [(y_lo + cw, y_hi - cw)]:
                 fill.fill((a + cw, r0, b, r1), True)
     for x0, x1 in ((0, end_l), (length - end_r, length)):
         if x1 > x0:

@@ -2,13 +2,13 @@
 
 ``generate_floor(seed, name)`` draws one floor with :func:`~edge_explorer.world.floor_layouts.floor_layout`
 (corridor spines — straight, L, T, U, comb, H, or a ring around an inner block — wings, rows of offices, labs,
-halls and stairwell cores) and builds it with the 21 × 11 m generator's own stages
+lecture rooms, open-plan halls and atria, and stairwell cores) and builds it with the 21 × 11 m generator's own stages
 (:mod:`edge_explorer.world.generator`): label grid → walls → doors on a spanning tree from the corridor (so every
 room is reachable at the robot's radius) → furniture → a random symmetry → :func:`validate_plan` and the
 connectivity check at 0.05 m; a failed attempt is retried with a derived seed. Lift shafts get no door and are
 filled with wall: closed blocks, not flyable inside. ``meta`` holds ``family: "floor"`` (which lets the plan
 exceed the 21 × 11 m envelope, up to :data:`~edge_explorer.world.plan.FLOOR_FOOTPRINT_M`), ``shape``, ``ring``,
-``seed``, the counts of rooms by kind and ``generator``.
+``seed``, the counts of rooms by kind (``offices``, ``labs``, ``lectures``, ``halls``, ``cores``) and ``generator``.
 
 Splits: floor ``k`` of split ``s`` is named ``floor-<s>-<k:05d>`` and drawn from a seed derived from
 (dataset seed, "floors", split, k) only (:func:`floor_seed`), independent of the 21 × 11 m dataset's seeds, so the
@@ -23,38 +23,44 @@ Usage::
     # edge-explorer plans sheet --plans floors-test --png floors.png
     # edge-explorer plans check floor-test-00003
 
-Statistics aimed for (office practice): corridors 1.8–2.6 m, office rows 4.2–6.5 m deep (labs 6.5–9 m), offices
-2.6–4.6 m wide (≈ 11–30 m²), labs 6–12 m wide, halls 10–20 m, a stairwell core every 25–50 m of corridor, doors
-0.80–1.20 m (the generator's), walls 0.10–0.15 m inside, 0.15–0.25 m outside.
+What a floor holds (aimed at real university and office floors, see the table): corridors 2.4–3.2 m; office rows
+4.8–7 m deep, cut into offices 3.3–6 m wide (≈ 16–40 m²) with a few labs, lecture rooms and open-plan halls; deep
+rows 10–18 m deep (60 % of rows; one spine row always holds offices), cut into open-plan halls 12–40 m wide, lecture
+rooms 10–20 m and labs 8–16 m; on a ring floor an inner block 10–26 m deep whose segments are atria (one open hall),
+one deep row or two rows back to back; a stairwell core every 25–50 m of corridor; doors 0.80–1.20 m (the
+generator's); walls 0.10–0.15 m inside, 0.15–0.25 m outside; the spine 40–200 m long, drawn uniformly.
 
 Measured with a one-off script (not in the repository) on the 32 test floors rasterized at 0.10 m (walls and tall
 furniture as obstacles) and on the 7 whole KTH floors of ``../shared/data/realplans_whole`` (validation only, never
-tuned to): ``width`` is the diameter of the largest free disc that covers a point (a size spectrum of the free space
-that needs no room segmentation), ``wall face`` the length of free-space boundary per m² of free floor::
+tuned to geometry; free = light pixels): ``width`` is the diameter of the largest free disc that covers a point (a
+size spectrum of the free space that needs no room segmentation: the opening of the free space by discs of radius
+0.75, 1.5, 2.5 and 4 m, via a distance transform), ``wall face`` the length of free/blocked cell edges per m² of
+free floor. Version 1 is the first generator (office floors), version 2 this one::
 
-                                       generated (32, median [range])   real KTH (7, median [range])
-    long side [m]                      93 [41–188]                      263 [205–271]
-    free floor [m²]                    2,050 [440–5,550]                11,200 [6,100–21,500]
-    free area, width < 1.5 m           0.03 [0.02–0.03]                 0.03 [0.02–0.03]
-                      1.5–3 m          0.32 [0.16–0.52]                 0.05 [0.03–0.08]
-                      3–5 m            0.48 [0.34–0.63]                 0.16 [0.10–0.27]
-                      5–8 m            0.15 [0.00–0.45]                 0.17 [0.13–0.25]
-                      ≥ 8 m            0.00 [0.00–0.25]                 0.60 [0.48–0.65]
-    wall face [m per m² free]          0.82 [0.70–0.89]                 0.46 [0.42–0.53]
-    rooms per 100 m² (segmented, *)    4.6 [2.8–7.1]                    0.6 [0.5–0.7]
-    room area median [m²] (segm., *)   16 [12–23]                       48 [22–52]
-    corridor width [m] (segm., *)      2.2 [1.8–3.5]                    2.8 [2.0–3.2]
+    median [range]                     v1 (32)               v2 (32)               real KTH (7)
+    long side [m]                      94 [41–188]           128 [54–193]          263 [205–270]
+    free floor [m²]                    2,047 [440–5,552]     4,439 [1,101–11,731]  11,101 [6,006–21,538]
+    free area, width < 1.5 m           0.03 [0.02–0.03]      0.01 [0.00–0.03]      0.03 [0.02–0.03]
+                      1.5–3 m          0.32 [0.16–0.52]      0.13 [0.02–0.20]      0.04 [0.03–0.08]
+                      3–5 m            0.48 [0.34–0.63]      0.19 [0.08–0.46]      0.16 [0.10–0.28]
+                      5–8 m            0.15 [0.00–0.45]      0.16 [0.06–0.33]      0.18 [0.13–0.25]
+                      ≥ 8 m            0.00 [0.00–0.25]      0.53 [0.16–0.69]      0.60 [0.48–0.65]
+    wall face [m per m² free]          0.84 [0.72–0.91]      0.46 [0.36–0.64]      0.52 [0.46–0.58]
+    rooms per 100 m² (segm., *)        3.8 [2.8–6.6]         1.1 [0.6–2.0]         0.6 [0.6–0.8]
+    room area median [m²] (segm., *)   18 [13–28]            30 [21–94]            41 [20–52]
+    corridor width [m] (segm., *)      2.0 [1.8–4.4]         2.6 [2.2–3.0]         3.2 [2.6–4.2]
 
-(*) doorways cut by an opening of 0.9 m radius; the real drawings have wide gaps in their walls, so their rooms merge
-and these real figures are upper bounds on room size (lower bounds on room count). The gap is real all the same:
-the KTH floors (university buildings) hold much more open space — halls, lecture rooms, atria wider than 8 m —
-than these office floors, whose free space is mostly corridors and cellular offices. Raising ``p_hall``,
-``hall_width_m`` and ``p_lab`` in :class:`FloorConfig` moves the spectrum towards them.
+(*) rooms: the components of the points at least 0.9 m from any obstacle (doorways of ≤ 1.2 m cut them apart),
+each free cell given to its nearest component; corridor width: the median disc diameter on the ridge (local maxima
+of the distance transform, 1.8–5 m wide) of the component with most such ridge cells. The real drawings have wide
+gaps in their walls, so their rooms merge: their room figures are upper bounds on room size (lower bounds on room
+count). What remains: v2 floors are shorter (the issue asks 40–200 m, the KTH floors are 205–270 m), still have
+more 1.5–3 m space (corridors and small offices) and more, smaller rooms than the KTH university floors.
 
-Timing (one core, shared machine): a floor takes 0.1–0.6 s to generate, validate, rasterize at 0.05 m and check
-for connectivity (``floors-test``: 32 floors in about 8 s, ``plans sheet --plans floors-test`` 8.5 s). Cutting a
-floor to its flight space (what the catalog, ``plans check`` and N_M do) is the slow part: about 2 s for the 42 m
-``floor-test-00006``, minutes for a 150 m floor (``plans check`` on a 266 m KTH floor took 4 min 17 s).
+Timing (one core, shared machine): a floor takes 0.03–0.6 s (median 0.14 s) to generate, validate, rasterize at
+0.05 m and check for connectivity (``floors-test``: 32 floors in about 6 s). Cutting a floor to its flight space
+(what the catalog, ``plans check`` and N_M do) is the slow part: seconds for the 67 m ``floor-test-00012``, minutes
+for a 150 m floor (``plans check`` on a 266 m KTH floor took 4 min 17 s).
 """
 
 from __future__ import annotations
@@ -71,14 +77,14 @@ from edge_explorer.world.layouts import UNIT_M, Box, Retry, uniform_u
 from edge_explorer.world.plan import FloorPlan, Furniture, Rect, validate_plan
 from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster, check_connected, rasterize
 
-FLOOR_GENERATOR_VERSION = 1  # bump whenever the same seed would give a different floor
+FLOOR_GENERATOR_VERSION = 2  # bump whenever the same seed would give a different floor
 MAX_ATTEMPTS = 8
 SPLITS: tuple[str, ...] = ("train", "val", "test")
 FLOOR_SPLIT_SIZES: dict[str, int] = {"train": 2000, "val": 100, "test": 32}
 _FAMILY_SALT = 0xF1002  # keeps floor seeds apart from the 21 × 11 m dataset's plan_seed
 
 # furniture per room kind: (m² of free floor per item, most items)
-_FURNITURE: dict[str, tuple[float, int]] = {"room": (2.5, 6), "lab": (4.0, 12), "hall": (8.0, 10)}
+_FURNITURE: dict[str, tuple[float, int]] = {"room": (2.5, 6), "lab": (4.0, 12), "lecture": (6.0, 8), "hall": (8.0, 10)}
 
 
 def floor_seed(dataset_seed: int, split: str, index: int) -> int:
@@ -135,6 +141,7 @@ def _build(rng: np.random.Generator, cfg: FloorConfig, seed: int, name: str) -> 
             "rooms": sum(n for k, n in counts.items() if k not in ("corridor", "shaft")),
             "offices": counts["room"],
             "labs": counts["lab"],
+            "lectures": counts["lecture"],
             "halls": counts["hall"],
             "cores": counts["core"],
             "generator": FLOOR_GENERATOR_VERSION,

@@ -23,7 +23,7 @@ from edge_explorer.world.plan import FloorPlan, validate_plan
 from edge_explorer.world.raster import check_connected
 
 SMALL = FloorConfig(length_m=(40.0, 60.0), wing_length_m=(10.0, 20.0))
-SMALL_FLOOR = "floor-test-00006"  # a 42 m bar: the smallest floor of the test split, quick to cut to its flight space
+SMALL_FLOOR = "floor-test-00012"  # a 68 × 27 m L, 1,100 m² free: the smallest floor of the test split, quickest to cut
 
 
 @cache
