@@ -102,7 +102,8 @@ def test_cli_writes_table_json_and_figure(tmp_path, capsys):
     assert set(report["summary"]["plans"]["two-rooms"]) == {"frontier", "fuel"}
     assert set(report["curves"]["two-rooms"]["fuel"]) == {"path_m", "coverage", "correct_coverage"}
     assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
-    assert [(p["a"], p["b"]) for p in report["paired"]] == [("frontier", "fuel")]
+    metrics = ["path_at_coverage_m", "path_at_correct_90_m", "path_at_correct_coverage_m"]
+    assert [(p["metric"], p["a"], p["b"]) for p in report["paired"]] == [(m, "frontier", "fuel") for m in metrics]
     out = capsys.readouterr().out
     assert "| two-rooms | fuel |" in out and "| fuel − frontier |" in out
 
