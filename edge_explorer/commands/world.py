@@ -144,7 +144,7 @@ def _sheet(args: argparse.Namespace) -> int:
     from edge_explorer.world.render import save_contact_sheet
 
     if args.plans:
-        from edge_explorer.world.floors import sheet_rasters
+        from edge_explorer.world.catalog import sheet_rasters
 
         rasters, titles = sheet_rasters(args.plans)
     else:

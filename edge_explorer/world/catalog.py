@@ -118,3 +118,27 @@ def load_building(ref: str) -> PlanRaster:
     if len(rasters) != 1:
         raise PlanError(f"{ref!r} names {len(rasters)} plans where one is expected")
     return rasters[0]
+
+
+def sheet_rasters(ref: str) -> tuple[list[PlanRaster], list[str]]:
+    """Rasters and titles for ``plans sheet --plans REF`` (a comma-separated list): floors at 0.10 m, drawn without
+    cutting them to the flight space (minutes per large floor); any other reference through the catalog."""
+    from edge_explorer.world.floors import resolve_floor_reference
+
+    rasters: list[PlanRaster] = []
+    titles: list[str] = []
+    for part in (p.strip() for p in ref.split(",")):
+        floors = resolve_floor_reference(part)
+        if floors is None:
+            loaded = load_buildings(part)
+            rasters += loaded
+            titles += [r.name for r in loaded]
+            continue
+        for p in floors:
+            b = p.bounds()
+            ring = " ring" if p.meta["ring"] else ""
+            titles.append(
+                f"{p.name} · {p.meta['shape']}{ring} · {b.width_m:.0f}×{b.height_m:.0f} m · {p.meta['rooms']} rooms"
+            )
+            rasters.append(rasterize(p, 0.10))
+    return rasters, titles
