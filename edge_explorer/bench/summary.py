@@ -270,3 +270,42 @@ def plot_curves(panels: dict[str, Any], path: Path, goal: float, title: str) -> 
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+# ---- the oracle's yardstick (edge_explorer.bench.oracle) ---------------------------------------------------------
+def oracle_ratios(
+    summary: dict[str, Any], methods: Sequence[str], oracle_m: dict[str, float], metric: str = "path_at_coverage_m"
+) -> dict[str, dict[str, Any]]:
+    """Per method: its average path at ``metric`` over the oracle's path, per building and their mean over the
+    buildings where both have one (paired by building, so big buildings do not outweigh small ones)."""
+    out = {}
+    for m in methods:
+        per_plan = {
+            plan: by_method[m][metric]["avg"] / oracle_m[plan]
+            for plan, by_method in summary["plans"].items()
+            if plan in oracle_m and oracle_m[plan] > 0 and by_method[m][metric]["avg"] is not None
+        }
+        mean = float(np.mean(list(per_plan.values()))) if per_plan else None
+        out[m] = {"plans": per_plan, "mean": mean, "buildings": len(per_plan)}
+    return out
+
+
+def markdown_oracle(summary: dict[str, Any], methods: Sequence[str], oracle_m: dict[str, float]) -> str:
+    """Table: per building the oracle's path and each method's average path at 95 % coverage with its ratio to the
+    oracle; last row the mean ratio (paired by building)."""
+    ratios = oracle_ratios(summary, methods, oracle_m)
+    lines = [
+        "| building | oracle (m) | " + " | ".join(f"{m} (m, ×oracle)" for m in methods) + " |",
+        "| --- | --- | " + " | ".join("---" for _ in methods) + " |",
+    ]
+    for plan, by_method in summary["plans"].items():
+        if plan not in oracle_m:
+            continue
+        cells = []
+        for m in methods:
+            avg, ratio = by_method[m]["path_at_coverage_m"]["avg"], ratios[m]["plans"].get(plan)
+            cells.append("–" if avg is None or ratio is None else f"{avg:.1f} (×{ratio:.2f})")
+        lines.append(f"| {plan} | {oracle_m[plan]:.1f} | " + " | ".join(cells) + " |")
+    means = ["–" if ratios[m]["mean"] is None else f"×{ratios[m]['mean']:.2f}" for m in methods]
+    lines.append(f"| mean ratio ({len(oracle_m)} plans) | 1 | " + " | ".join(means) + " |")
+    return "\n".join(lines) + "\n"

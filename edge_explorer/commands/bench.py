@@ -8,12 +8,13 @@ from pathlib import Path
 
 from edge_explorer.cli_support import positive_int
 from edge_explorer.cluster.units import add_ray_argument
+from edge_explorer.commands import bench_oracle
 
 DESCRIPTION = "Exploration benchmark: path length to 95 % coverage per building and method, coverage figure."
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    bench = sub.add_parser("bench", help="benchmarks: explore", description=DESCRIPTION)
+    bench = sub.add_parser("bench", help="benchmarks: explore, oracle", description=DESCRIPTION)
     bsub = bench.add_subparsers(dest="bench_command", metavar="ACTION", required=True)
     explore = bsub.add_parser(
         "explore",
@@ -50,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     explore.add_argument("--plot", type=Path, help="coverage-vs-path-length figure (PNG)")
     explore.add_argument("--markdown", type=Path, help="also write the table here")
     explore.set_defaults(func=_explore)
+    bench_oracle.register(bsub)
 
 
 def _explore(args: argparse.Namespace) -> int:
