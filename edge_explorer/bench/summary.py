@@ -49,6 +49,20 @@ def path_at(record: dict[str, Any], metric: str) -> float | None:
     return next((float(p) for c, p in zip(correct, path, strict=True) if c >= CORRECT_90), None)
 
 
+# Path budgets (m) at which the correctly mapped area is reported, as MapEx does: a real vehicle flies 10–20 minutes.
+BUDGETS_M: tuple[float, ...] = (100.0, 200.0, 400.0, 800.0)
+
+
+def correct_area_at_m2(record: dict[str, Any], budget_m: float) -> float | None:
+    """The correctly mapped area (m²: correct coverage × N_M) when ``record``'s path first reaches ``budget_m``; a
+    run that ended before it keeps its final map. ``None`` for records without the N_M area (older records)."""
+    if "n_m_m2" not in record:
+        return None
+    correct, path = record["curves"]["correct_coverage"], record["curves"]["path_length_m"]
+    within = [c for c, p in zip(correct, path, strict=True) if p <= budget_m]
+    return float(record["n_m_m2"] * (within[-1] if within else correct[0]))
+
+
 def _group_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     at_coverage = [r["path_at_coverage_m"] for r in records if r["path_at_coverage_m"] is not None]
     at_correct = [r["path_at_correct_coverage_m"] for r in records if r["path_at_correct_coverage_m"] is not None]
@@ -69,6 +83,9 @@ def _group_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "final_coverage": _stats([r["final_coverage"] for r in records]),
         "final_correct_coverage": _stats([r["final_correct_coverage"] for r in records]),
         "endings": {e: sum(1 for r in records if r["ending"] == e) for e in ("goal", "explored", "step_cap")},
+        "correct_area_at_budget_m2": {
+            f"{b:g}": _stats([a for r in records if (a := correct_area_at_m2(r, b)) is not None]) for b in BUDGETS_M
+        },
         "planner_ms_per_step": 1e3 * sum(r["planner_s"] for r in records) / max(sum(r["steps"] for r in records), 1),
     }
 
@@ -196,6 +213,25 @@ def markdown_table(summary: dict[str, Any], methods: Sequence[str], per_plan: bo
                 f"{_fmt_stats(s['path_at_correct_coverage_m'])} | {s['reached_correct_coverage']}/{s['runs']} | "
                 f"{100 * s['success_rate']:.0f} % | {s['collisions']} | {s['steps']['avg']:.0f} |"
             )
+    return "\n".join(lines) + "\n"
+
+
+def markdown_budgets(summary: dict[str, Any], methods: Sequence[str]) -> str:
+    """Correctly mapped area (m², mean over every run) at each path budget, and its ratio to the first method's."""
+    overall = summary["all"]
+    keys = [f"{b:g}" for b in BUDGETS_M]
+    if any(overall[m]["correct_area_at_budget_m2"][k]["avg"] is None for m in methods for k in keys):
+        return ""
+    head = " | ".join(f"at {k} m" for k in keys)
+    lines = [f"| correctly mapped area (m²), mean | {head} |", "| --- |" + " --- |" * len(keys)]
+    reference = overall[methods[0]]["correct_area_at_budget_m2"]
+    for m in methods:
+        areas = overall[m]["correct_area_at_budget_m2"]
+        cells = []
+        for k in keys:
+            ratio = areas[k]["avg"] / reference[k]["avg"] if reference[k]["avg"] else float("nan")
+            cells.append(f"{areas[k]['avg']:.0f} ({ratio:.2f} ×)")
+        lines.append(f"| {m} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
 
 

@@ -62,6 +62,7 @@ def _explore(args: argparse.Namespace) -> int:
         METRICS,
         failures,
         figure_panels,
+        markdown_budgets,
         markdown_failures,
         markdown_paired,
         markdown_table,
@@ -92,6 +93,8 @@ def _explore(args: argparse.Namespace) -> int:
     if len(methods) > 1:
         for metric in METRICS:
             table += "\n" + markdown_paired([p for p in paired if p["metric"] == metric])
+    budgets = markdown_budgets(summary, methods)
+    table += "\n" + budgets if budgets else ""
     command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
     failed = failures(records)
     table += markdown_failures(failed)

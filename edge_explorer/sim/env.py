@@ -389,6 +389,7 @@ class ExplorationEnv(gym.Env):
             "coverage": m.coverage,
             "correct_coverage": m.correct_coverage,
             "f1": m.f1,
+            "n_m_m2": m.n_m * LOW_RES_M**2,  # the building's N_M area: coverage × this is the area known
             "path_length_m": self._path_length_m,
             "collided": collided,
             "penalised": penalised,

@@ -82,6 +82,7 @@ def run_episode(
         "final_coverage": coverage[-1],
         "final_correct_coverage": correct[-1],
         "path_length_m": path[-1],
+        "n_m_m2": info["n_m_m2"],
         "path_at_coverage_m": _first_crossing(coverage, path, spec.coverage_goal),
         "path_at_correct_coverage_m": _first_crossing(correct, path, spec.coverage_goal),
         "wall_s": time.perf_counter() - start,

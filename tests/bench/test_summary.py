@@ -3,7 +3,9 @@
 import pytest
 
 from edge_explorer.bench.summary import (
+    correct_area_at_m2,
     failures,
+    markdown_budgets,
     markdown_paired,
     markdown_table,
     mean_curves,
@@ -93,3 +95,17 @@ def test_mean_curves_hold_the_final_value():
     curves = mean_curves([short, long], step_m=1.0)
     assert curves["path_m"] == [0.0, 1.0, 2.0, 3.0, 4.0]
     assert curves["coverage"]["mean"] == pytest.approx([0.05, 0.35, 0.68, 0.78, 0.88])
+
+
+def test_correct_area_at_a_budget_holds_the_map_flown_so_far():
+    record = fake_record("A", "frontier", 0, 2.0)  # correct coverage 0.1, 0.4, 0.9 at 0, 1, 2 m
+    assert correct_area_at_m2(record, 100.0) is None  # a record without the N_M area
+    record["n_m_m2"] = 200.0
+    record["curves"]["path_length_m"] = [0.0, 150.0, 300.0]
+    assert correct_area_at_m2(record, 100.0) == pytest.approx(20.0)
+    assert correct_area_at_m2(record, 200.0) == pytest.approx(80.0)
+    assert correct_area_at_m2(record, 800.0) == pytest.approx(180.0)  # ended before the budget: its final map
+    other = {**record, "spec": {"plan": "A", "method": "fuel", "run": 0}, "n_m_m2": 400.0}
+    table = markdown_budgets(summarize([record, other], ["frontier", "fuel"]), ["frontier", "fuel"])
+    assert "| frontier | 20 (1.00 ×) | 80 (1.00 ×) | 180 (1.00 ×) | 180 (1.00 ×) |" in table
+    assert "| fuel | 40 (2.00 ×)" in table
