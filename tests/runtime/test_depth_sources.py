@@ -44,7 +44,8 @@ def test_simulated_source_renders_the_true_pose_at_its_rate(camera: DepthCamera)
         np.testing.assert_array_equal(frame.depth_m, expected)
         assert frame.intrinsics == camera.config.intrinsics and frame.pose is None
     spacing = np.diff([f.stamp_s for f in frames])
-    assert spacing == pytest.approx(1 / 15, abs=0.012)
+    # frames keep the camera's 15 Hz schedule: single stamps jitter with the host's load, their mean does not
+    assert np.all(spacing > 0) and np.mean(spacing) == pytest.approx(1 / 15, abs=0.006)
     assert not source.finished
 
 
