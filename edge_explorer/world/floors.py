@@ -71,11 +71,10 @@ import numpy as np
 
 from edge_explorer.errors import EdgeExplorerError, PlanError
 from edge_explorer.world.floor_layouts import FloorConfig, floor_layout
-from edge_explorer.world.generator import _furnish, _geometry, _m, _place_doors, _symmetry
-from edge_explorer.world.grid import HIGH_RES_M
-from edge_explorer.world.layouts import UNIT_M, Box, Retry, uniform_u
-from edge_explorer.world.plan import FloorPlan, Furniture, Rect, validate_plan
-from edge_explorer.world.raster import ROBOT_RADIUS_M, PlanRaster, check_connected, rasterize
+from edge_explorer.world.generator import _furnish, _geometry, _m, _place_doors, _symmetry, checked_build
+from edge_explorer.world.layouts import UNIT_M, Box, uniform_u
+from edge_explorer.world.plan import FloorPlan, Furniture, Rect
+from edge_explorer.world.raster import PlanRaster
 
 FLOOR_GENERATOR_VERSION = 2  # bump whenever the same seed would give a different floor
 MAX_ATTEMPTS = 8
@@ -155,19 +154,13 @@ def generate_floor_and_raster(seed: int, name: str, cfg: FloorConfig | None = No
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     seed = int(seed)
     cfg = cfg or FloorConfig()
-    problems = []
-    for attempt in range(MAX_ATTEMPTS):
-        rng = np.random.default_rng([seed, 0xF1002] if attempt == 0 else [seed, 0xF1002, attempt])
-        try:
-            plan = _build(rng, cfg, seed, name)
-            validate_plan(plan)
-            raster = rasterize(plan, HIGH_RES_M)
-            check_connected(raster, ROBOT_RADIUS_M)
-        except (Retry, PlanError) as exc:
-            problems.append(str(exc))
-            continue
-        return plan, raster
-    raise PlanError(f"seed {seed}: no valid floor in {MAX_ATTEMPTS} attempts (last: {problems[-1]})")
+    chosen = cfg
+    return checked_build(
+        lambda rng: _build(rng, chosen, seed, name),
+        lambda attempt: [seed, 0xF1002] if attempt == 0 else [seed, 0xF1002, attempt],
+        f"seed {seed}: no valid floor",
+        MAX_ATTEMPTS,
+    )
 
 
 def generate_floor(seed: int, name: str, cfg: FloorConfig | None = None) -> FloorPlan:

@@ -415,11 +415,28 @@ def generate_plan_and_raster(seed: int, name: str, style: str | None = None) -> 
         style = style_of_seed(seed)
     if style not in STYLES:
         raise ValueError(f"unknown style {style!r}; choose one of {STYLES}")
+    chosen = style
+    return checked_build(
+        lambda rng: _build(rng, chosen, seed, name),
+        lambda attempt: seed if attempt == 0 else [seed, attempt],
+        f"seed {seed}: no valid {style!r} plan",
+    )
+
+
+def checked_build(
+    build: Callable[[np.random.Generator], FloorPlan],
+    attempt_seed: Callable[[int], int | list[int]],
+    failure: str,
+    attempts: int = MAX_ATTEMPTS,
+) -> tuple[FloorPlan, PlanRaster]:
+    """Draw a plan with ``build``, validate it, rasterize it at 0.05 m and check it is connected at the robot's
+    radius; a failed attempt is drawn again from the generator seeded with ``attempt_seed(attempt)``. Raises
+    :class:`PlanError` (``failure``, the attempts and the last problem) when no attempt passes."""
     problems = []
-    for attempt in range(MAX_ATTEMPTS):
-        rng = np.random.default_rng(seed if attempt == 0 else [seed, attempt])
+    for attempt in range(attempts):
+        rng = np.random.default_rng(attempt_seed(attempt))
         try:
-            plan = _build(rng, style, seed, name)
+            plan = build(rng)
             validate_plan(plan)
             raster = rasterize(plan, HIGH_RES_M)
             check_connected(raster, ROBOT_RADIUS_M)
@@ -427,7 +444,7 @@ def generate_plan_and_raster(seed: int, name: str, style: str | None = None) -> 
             problems.append(str(exc))
             continue
         return plan, raster
-    raise PlanError(f"seed {seed}: no valid {style!r} plan in {MAX_ATTEMPTS} attempts (last: {problems[-1]})")
+    raise PlanError(f"{failure} in {attempts} attempts (last: {problems[-1]})")
 
 
 def generate_plan(seed: int, name: str, style: str | None = None) -> FloorPlan:
