@@ -37,6 +37,7 @@ def test_passes_the_gymnasium_checker(rooms):
         "coverage",
         "correct_coverage",
         "f1",
+        "n_m_m2",
         "path_length_m",
         "collided",
         "penalised",
