@@ -46,6 +46,7 @@ def test_soak_rejects_a_real_autopilot(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_a_short_soak_flies_flights_back_to_back_and_reports_them(tmp_path, capsys):
+    gc.collect()  # daemons an earlier test left in reference cycles are not this soak's
     plan = tmp_path / "rooms.json"
     save_plan_json(two_room_plan(), plan)
     out = tmp_path / "soak"
