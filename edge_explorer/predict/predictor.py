@@ -91,9 +91,9 @@ class PredictorRuntime:
     """An exported map predictor ready to run, with its thresholds (see the module docstring)."""
 
     def __init__(self, model: LoadedModel, thresholds: ThresholdConfig | None = None, calibrated: bool = True) -> None:
-        """``thresholds``: None reads them from the card beside the loaded artifact (:func:`card_thresholds`), in
-        raw units either way. ``calibrated``: apply the card's probability calibration, if it has one
-        (:func:`card_calibration`); False gives the raw output (and thresholds without the map)."""
+        """``thresholds``: None reads them from the card beside the loaded artifact (:func:`card_thresholds`) with,
+        if ``calibrated``, the card's probability calibration (:func:`card_calibration`); a config given is used as
+        it is, its ``calibration`` (None: raw output) included. The runtime applies the map its thresholds carry."""
         inputs, outputs = model.backend.inputs, model.backend.outputs
         if len(inputs) != 1 or len(outputs) != 1:
             raise PredictorModelError(
@@ -117,9 +117,12 @@ class PredictorRuntime:
                 f"{self.window_cells}×{self.window_cells} probability map"
             )
         self.model = model
-        self.calibration = card_calibration(model.artifact.parent) if calibrated else None
-        raw_thresholds = card_thresholds(model.artifact.parent) if thresholds is None else thresholds
-        self.thresholds = dataclasses.replace(raw_thresholds, calibration=self.calibration)
+        if thresholds is None:
+            folder = model.artifact.parent
+            calibration = card_calibration(folder) if calibrated else None
+            thresholds = dataclasses.replace(card_thresholds(folder), calibration=calibration)
+        self.thresholds = thresholds
+        self.calibration = thresholds.calibration
         self._input_name = inputs[0].name
         self._output_name = outputs[0].name
 
@@ -131,7 +134,7 @@ class PredictorRuntime:
 
     def uncalibrated(self) -> PredictorRuntime:
         """The same loaded model without the probability calibration (its raw output, raw thresholds)."""
-        return PredictorRuntime(self.model, dataclasses.replace(self.thresholds, calibration=None), calibrated=False)
+        return PredictorRuntime(self.model, dataclasses.replace(self.thresholds, calibration=None))
 
     def raw(self, window: np.ndarray) -> np.ndarray:
         """float32 (S, S) probabilities as the model outputs them (no calibration map)."""
