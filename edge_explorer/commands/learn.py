@@ -44,7 +44,8 @@ def _threshold_pair(text: str) -> tuple[float, float]:
 def register(sub: argparse._SubParsersAction) -> None:
     train = sub.add_parser(
         "train",
-        help="training: predictor-data, predictor, ship-predictor, goal-demos, goal-bc, goal-ppo, ship-policy",
+        help="training: predictor-data, predictor, ship-predictor, calibrate-predictor, calibrate-probabilities, "
+        "goal-demos, goal-bc, goal-ppo, ship-policy",
         description=DESCRIPTION,
     )
     tsub = train.add_subparsers(dest="train_command", metavar="WHAT", required=True)
@@ -193,6 +194,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     cal.add_argument("--docs", type=Path, default=Path("docs/predictor"), help="calibration_val.json / .png here")
     cal.set_defaults(func=_calibrate_predictor)
 
+    prob = tsub.add_parser(
+        "calibrate-probabilities",
+        help="fit a monotone map that calibrates the predictor's P(occupied) on the val split; into its card",
+        description="Fly plans of the regenerated val split as eval predictor does (raw model), count every "
+        "unobserved interior cell of the window with its probability and truth, fit a strictly increasing map "
+        "(beta calibration sigmoid(a ln p - c ln(1-p) + b), or platt: a = c) by maximum likelihood, check that no "
+        "thresholded map changes (the card's thresholds are mapped with it), and write it into the card as "
+        "'calibration'; PredictorRuntime then hands out calibrated probabilities. Figures to --docs "
+        "(probability_calibration_val.json, reliability_val.png). Measure on test with eval predictor "
+        "--reliability-plot.",
+    )
+    prob.add_argument("--model", type=Path, default=Path("models/predictor"), help="exported model folder (card.json)")
+    prob.add_argument("--plans", type=positive_int, default=12, help="val plans to fly (default 12)")
+    prob.add_argument("--method", choices=("beta", "platt"), default="beta", help="the map (default beta)")
+    prob.add_argument("--bins", type=positive_int, default=20, help="reliability bins for the report (default 20)")
+    prob.add_argument("--explorer", default="random-goal", help="random-goal (default), frontier or fuel")
+    prob.add_argument("--seed", type=int, default=0)
+    prob.add_argument(
+        "--occupied-noise", type=_probability, default=0.1, metavar="P", help="sensor noise (default 0.1, as eval)"
+    )
+    prob.add_argument("--docs", type=Path, default=Path("docs/predictor"), help="figures here")
+    prob.set_defaults(func=_calibrate_probabilities)
+
     ship_pol = tsub.add_parser(
         "ship-policy",
         help="copy goal-policy weights to models/policy with card.json (stages, evaluation, flight-ready)",
@@ -227,6 +251,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     evp.add_argument("--plans", required=True, help="plan reference: test, A-D, a folder, a .yaml/.json")
     evp.add_argument("--json", type=Path, required=True, help="write the figures here")
     evp.add_argument("--plot", type=Path, help="curves (PNG)")
+    evp.add_argument(
+        "--reliability-plot",
+        type=Path,
+        metavar="PNG",
+        help="reliability diagram of the unobserved interior cells (raw, and calibrated if the card calibrates); "
+        "ECE / MCE / Brier are always in --json under 'reliability'",
+    )
     evp.add_argument("--explorer", default="random-goal", help="random-goal (default), frontier or fuel")
     evp.add_argument("--seed", type=int, default=0)
     evp.add_argument("--limit", type=positive_int, help="only the first N plans")
@@ -374,6 +405,12 @@ def _calibrate_predictor(args: argparse.Namespace) -> int:
     from edge_explorer.learn.calibrate_predictor import calibrate_cli
 
     return calibrate_cli(args)
+
+
+def _calibrate_probabilities(args: argparse.Namespace) -> int:
+    from edge_explorer.learn.calibrate_probabilities import calibrate_probabilities_cli
+
+    return calibrate_probabilities_cli(args)
 
 
 def _ship_predictor(args: argparse.Namespace) -> int:

@@ -155,7 +155,8 @@ def calibrate_cli(args: argparse.Namespace) -> int:
     from edge_explorer.cli_support import write_json
 
     card_path = args.model / CARD_FILE
-    predictor = PredictorRuntime(load_model(card_path))  # as the daemon runs it: the backend chain, int8 first
+    # as the daemon runs it (the backend chain, int8 first), raw: the thresholds are chosen in raw units
+    predictor = PredictorRuntime(load_model(card_path), calibrated=False)
     sensor = dataclasses.replace(DEFAULT_SENSOR, occupied_noise_prob=args.occupied_noise)
     t0 = time.perf_counter()
     plans, samples = collect_samples(predictor, args.plans, args.explorer, args.seed, args.levels, sensor)

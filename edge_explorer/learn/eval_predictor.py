@@ -10,6 +10,14 @@ cells always win and some are wrong — sensor noise marks free cells beside wal
 Every reported level (50, 80, 95, 98 %) is a bin edge, so "F1 at 80 %" is exactly the first scan whose true
 coverage reaches 80 %.
 
+Reliability (issue #56, :mod:`edge_explorer.learn.reliability`): at the same scored scans, every unobserved interior
+cell inside the predictor's window is counted with its probability and its truth — the cells the prediction speaks
+for in flight — and the report gives the reliability diagram, ECE, MCE and Brier score over them: of the model's raw
+output (``reliability.raw``) and, when its card calibrates the probabilities, of what the runtime hands out
+(``reliability.calibrated``). The flight flies the raw model and thresholds it with the raw thresholds, which gives
+the very maps the calibrated model and its mapped thresholds give (:mod:`edge_explorer.predict.thresholding`).
+Early scans have more unobserved cells, so they weigh more.
+
 Aggregation: per coverage level, the mean over the plans whose flight reached it (``n`` says how many did: the
 inside of tall furniture is never observable, so not every plan reaches 98 % true coverage).
 
@@ -46,12 +54,15 @@ from edge_explorer.learn.predictor_flights import (
     Scene,
     fly,
 )
+from edge_explorer.learn.reliability import DEFAULT_BINS, ProbabilityCounts, plot_reliability
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS, pad_shift, unshift
 from edge_explorer.mapping.metrics import map_metrics
-from edge_explorer.predict.predictor import thresholds_of
+from edge_explorer.predict.predictor import PredictorRuntime, thresholds_of
+from edge_explorer.predict.probability_calibration import ProbabilityCalibration
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.env import Predictor
 from edge_explorer.vehicle.sensor import SensorConfig
+from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 from edge_explorer.world.raster import PlanRaster
 
 REPORT_LEVELS: tuple[float, ...] = (0.5, 0.8, 0.95, 0.98)
@@ -81,6 +92,7 @@ class PlanCurve:
     true_coverage: np.ndarray
     series: dict[str, np.ndarray]
     steps: int
+    counts: ProbabilityCounts = dataclasses.field(default_factory=ProbabilityCounts)  # unobserved interior cells
 
     def at(self, level: float) -> dict[str, float] | None:
         """The scores at the first scored scan whose true coverage reaches ``level``; None if never reached."""
@@ -124,6 +136,7 @@ def evaluate_plan(
     """Fly one plan and score the map with the thresholded prediction at each new coverage bin."""
     true_coverage: list[float] = []
     series: dict[str, list[float]] = {key: [] for key in SERIES}
+    counts = ProbabilityCounts()
     steps = 0
     for s, on_map in predictions_in_flight(scene, predictor, explorer, rng, limits, sensor):
         steps = s.step + 1
@@ -132,13 +145,30 @@ def evaluate_plan(
         maps = s.maps
         thres = thresholded_map(on_map, maps.low, maps.observed_area_m2(), thresholds)
         m = map_metrics(maps.low, scene.truth_low, scene.interior_low, thres)
+        unseen = scene.interior_low & (maps.low == UNKNOWN)
+        counts.add(on_map[unseen], scene.truth_low[unseen] == OCCUPIED)
         true_coverage.append(s.coverage)
         series["f1"].append(m.f1)
         series["coverage"].append(m.coverage)
         series["correct_coverage"].append(m.correct_coverage)
         series["f1_observed"].append(map_metrics(maps.low, scene.truth_low, scene.interior_low).f1)
         series["f1_ceiling"].append(map_metrics(maps.low, scene.truth_low, scene.interior_low, scene.truth_low).f1)
-    return PlanCurve(scene.name, np.array(true_coverage), {k: np.array(v) for k, v in series.items()}, steps)
+    return PlanCurve(scene.name, np.array(true_coverage), {k: np.array(v) for k, v in series.items()}, steps, counts)
+
+
+def reliability_report(
+    curves: Sequence[PlanCurve], calibration: ProbabilityCalibration | None, bins: int = DEFAULT_BINS
+) -> dict:
+    """The reliability of the raw probabilities and, with ``calibration``, of the calibrated ones, over the
+    unobserved interior cells of every scored scan; with the counts they come from (a fit can start from them)."""
+    counts = functools.reduce(ProbabilityCounts.merge, (c.counts for c in curves), ProbabilityCounts())
+    report: dict = {"cells": "unobserved interior cells in the window, every scored scan", "bins": bins}
+    if counts.total == 0:
+        return {**report, "raw": None, "calibrated": None, "counts": counts.to_json()}
+    report["raw"] = counts.reliability(bins).to_json()
+    report["calibrated"] = None if calibration is None else counts.reliability(bins, calibration).to_json()
+    report["calibration"] = None if calibration is None else calibration.to_json()
+    return {**report, "counts": counts.to_json()}
 
 
 def summarize(curves: Sequence[PlanCurve]) -> dict:
@@ -221,6 +251,9 @@ def _evaluate_unit(
 
             _WORKER_PREDICTORS[predictor] = load_predictor(predictor)
         predictor = _WORKER_PREDICTORS[predictor]
+    if isinstance(predictor, PredictorRuntime) and predictor.calibration is not None:
+        predictor = predictor.uncalibrated()  # the raw output, measured before and after the map (module docstring)
+    thresholds = dataclasses.replace(thresholds, calibration=None)
     rng = np.random.default_rng([seed, k])
     return evaluate_plan(
         Scene.from_raster(raster), predictor, make_explorer(explorer_name), rng, thresholds, sensor=sensor
@@ -241,13 +274,28 @@ def evaluate(
 
     ``predictor`` is a predictor or a reference for :func:`~edge_explorer.learn.loaders.load_predictor`; with ``ray``
     (``"auto"`` or an address) the plans are Ray tasks, each loading the predictor from its reference."""
-    from tqdm import tqdm
-
     from edge_explorer.world.catalog import load_buildings
+
+    rasters = load_buildings(plans_ref)[:limit]
+    return evaluate_rasters(plans_ref, rasters, predictor, explorer_name, seed, thresholds, sensor, ray)
+
+
+def evaluate_rasters(
+    plans_ref: str,
+    rasters: Sequence[PlanRaster],
+    predictor: Predictor | str,
+    explorer_name: str = "random-goal",
+    seed: int = 0,
+    thresholds: ThresholdConfig = DEFAULT_THRESHOLDS,
+    sensor: SensorConfig = DEFAULT_SENSOR,
+    ray: str | None = None,
+) -> dict:
+    """:func:`evaluate` on plans already loaded (``plans_ref`` names them in the report). The reliability of the
+    calibrated probabilities is that of ``thresholds.calibration`` (the runtime's own, :func:`thresholds_of`)."""
+    from tqdm import tqdm
 
     if ray is not None and not isinstance(predictor, str):
         raise ValueError("with ray, pass the predictor as a reference (a path) that every worker can load")
-    rasters = load_buildings(plans_ref)[:limit]
     explorer = make_explorer(explorer_name)
     t0 = time.perf_counter()
     unit = functools.partial(_evaluate_unit, predictor, explorer_name, seed, thresholds, sensor)
@@ -264,6 +312,7 @@ def evaluate(
         "thresholds": {"t_f_max": thresholds.t_f_max, "t_o": thresholds.t_o},
         "seconds": time.perf_counter() - t0,
         **summarize(curves),
+        "reliability": reliability_report(curves, thresholds.calibration),
     }
 
 
@@ -305,4 +354,21 @@ def evaluate_cli(args: argparse.Namespace) -> int:
             f"{row['f1_ceiling']:.3f}), coverage {row['coverage']:.3f}, correct {row['correct_coverage']:.3f}, "
             f"n={row['n']}"
         )
+    rel = report["reliability"]
+    for name in ("raw", "calibrated"):
+        if rel.get(name):
+            r = rel[name]
+            print(
+                f"  reliability, {name} probabilities ({r['cells']} unobserved interior cells, {r['bins']} bins): "
+                f"ECE {r['ece']:.4f}, MCE {r['mce']:.4f}, Brier {r['brier']:.4f}"
+            )
+    if args.reliability_plot and rel.get("raw"):
+        counts = ProbabilityCounts.from_json(rel["counts"])
+        calibration = thresholds.calibration
+        curves = {"raw": counts.reliability(rel["bins"])}
+        if calibration is not None:
+            curves["calibrated"] = counts.reliability(rel["bins"], calibration)
+        noise = f"sensor noise {args.occupied_noise:g}" if args.occupied_noise else "no sensor noise"
+        args.reliability_plot.parent.mkdir(parents=True, exist_ok=True)
+        plot_reliability(curves, args.reliability_plot, f"{args.model.name} on {args.plans}, {noise}")
     return 0

@@ -20,10 +20,18 @@ Its :attr:`PredictorRuntime.thresholds` are those every reader thresholds this m
 simulator, the benchmark): the card's calibrated ``thresholds`` when it has them (docs/design.md §5: they win;
 written by ``edge-explorer train calibrate-predictor``), the defaults of :class:`~edge_explorer.predict.thresholding.
 ThresholdConfig` otherwise.
+
+Calibrated probabilities (issue #56): when the card has a ``calibration`` entry (a strictly increasing map fitted on
+val, :mod:`edge_explorer.predict.probability_calibration`, written by ``edge-explorer train
+calibrate-probabilities``), every output goes through it, so every reader gets a P(occupied) that means what it
+says; :attr:`PredictorRuntime.thresholds` then carries the same map, so thresholding cuts the calibrated
+probabilities exactly where it cut the raw ones (the card's ``thresholds`` stay in raw units). :meth:`PredictorRuntime.
+raw` and :meth:`PredictorRuntime.uncalibrated` give the model's own output, for measuring and fitting the map.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -35,6 +43,7 @@ from edge_explorer.backends.chain import LoadedModel
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import Cell, pad_shift, unshift
 from edge_explorer.predict.encoding import INPUT_CHANNELS, decode_probabilities, encode_windows
+from edge_explorer.predict.probability_calibration import CALIBRATION_KEY, ProbabilityCalibration
 from edge_explorer.predict.thresholding import ThresholdConfig
 
 THRESHOLDS_KEY = "thresholds"  # the card's calibrated {"t_f_max", "t_o", ...}
@@ -61,11 +70,30 @@ def card_thresholds(card: Path) -> ThresholdConfig:
         raise CardError(f"{card}: '{THRESHOLDS_KEY}' needs numbers t_f_max <= t_o in [0, 1] ({exc!r})") from exc
 
 
+def card_calibration(card: Path) -> ProbabilityCalibration | None:
+    """The probability calibration map of a predictor's card (``card.json`` or its folder), None without one. Raises
+    :class:`CardError` if the card is unreadable or the entry is invalid."""
+    if card.is_dir():
+        card = card / CARD_FILE
+    try:
+        entry = json.loads(card.read_text()).get(CALIBRATION_KEY)
+    except (OSError, ValueError, AttributeError) as exc:
+        raise CardError(f"{card}: cannot read the predictor's calibration ({exc})") from exc
+    if entry is None:
+        return None
+    try:
+        return ProbabilityCalibration.from_json(entry)
+    except (TypeError, KeyError, ValueError) as exc:
+        raise CardError(f"{card}: bad '{CALIBRATION_KEY}' entry ({exc!r})") from exc
+
+
 class PredictorRuntime:
     """An exported map predictor ready to run, with its thresholds (see the module docstring)."""
 
-    def __init__(self, model: LoadedModel, thresholds: ThresholdConfig | None = None) -> None:
-        """``thresholds``: None reads them from the card beside the loaded artifact (:func:`card_thresholds`)."""
+    def __init__(self, model: LoadedModel, thresholds: ThresholdConfig | None = None, calibrated: bool = True) -> None:
+        """``thresholds``: None reads them from the card beside the loaded artifact (:func:`card_thresholds`) with,
+        if ``calibrated``, the card's probability calibration (:func:`card_calibration`); a config given is used as
+        it is, its ``calibration`` (None: raw output) included. The runtime applies the map its thresholds carry."""
         inputs, outputs = model.backend.inputs, model.backend.outputs
         if len(inputs) != 1 or len(outputs) != 1:
             raise PredictorModelError(
@@ -89,12 +117,27 @@ class PredictorRuntime:
                 f"{self.window_cells}×{self.window_cells} probability map"
             )
         self.model = model
-        self.thresholds = card_thresholds(model.artifact.parent) if thresholds is None else thresholds
+        if thresholds is None:
+            folder = model.artifact.parent
+            calibration = card_calibration(folder) if calibrated else None
+            thresholds = dataclasses.replace(card_thresholds(folder), calibration=calibration)
+        self.thresholds = thresholds
+        self.calibration = thresholds.calibration
         self._input_name = inputs[0].name
         self._output_name = outputs[0].name
 
     def __call__(self, window: np.ndarray) -> np.ndarray:
-        """float32 (S, S) occupancy probabilities of one int8 north-up ego window (S, S)."""
+        """float32 (S, S) occupancy probabilities of one int8 north-up ego window (S, S), calibrated if the card
+        says how."""
+        probabilities = self.raw(window)
+        return probabilities if self.calibration is None else self.calibration(probabilities)
+
+    def uncalibrated(self) -> PredictorRuntime:
+        """The same loaded model without the probability calibration (its raw output, raw thresholds)."""
+        return PredictorRuntime(self.model, dataclasses.replace(self.thresholds, calibration=None))
+
+    def raw(self, window: np.ndarray) -> np.ndarray:
+        """float32 (S, S) probabilities as the model outputs them (no calibration map)."""
         if window.shape != (self.window_cells, self.window_cells):
             raise ValueError(f"window shape {window.shape}, the model takes {self.window_cells}×{self.window_cells}")
         batch = encode_windows(window)[np.newaxis]

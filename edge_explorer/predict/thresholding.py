@@ -7,6 +7,13 @@ Early in a flight little is observed, so t_f is near 0 and almost nothing is pre
 wrong "free" would send the vehicle towards walls it has not seen. As the observed area grows the free threshold
 opens up to ``t_f_max``. Observed cells always keep their observed state; NaN probabilities (no prediction for
 that cell) stay UNKNOWN.
+
+``t_f_max`` and ``t_o`` are in the units of the model's *raw* output, the probabilities they were chosen on
+(``train calibrate-predictor``). When the model's card also calibrates the probabilities
+(:mod:`edge_explorer.predict.probability_calibration`, issue #56), the config carries that strictly increasing map
+``f`` and the thresholds are mapped through it after the dynamic free threshold is formed — ``f(t_f_max · factor)``,
+not ``f(t_f_max) · factor`` — so the calibrated probabilities are cut where the raw ones were and the thresholded
+map is the same cell for cell.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge_explorer.predict.probability_calibration import ProbabilityCalibration
 from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
 
 MAX_PLAN_AREA_M2 = 21.0 * 11.0  # the dataset's footprint envelope
@@ -22,11 +30,13 @@ MAX_PLAN_AREA_M2 = 21.0 * 11.0  # the dataset's footprint envelope
 
 @dataclass(frozen=True)
 class ThresholdConfig:
-    """Thresholds of f_t; phase-2 training anneals them from (≈0, ≈1) to the defaults."""
+    """Thresholds of f_t; phase-2 training anneals them from (≈0, ≈1) to the defaults. ``calibration``: the map
+    the probabilities being thresholded went through (None: raw probabilities); the thresholds stay raw."""
 
     t_f_max: float = 0.04
     t_o: float = 0.94
     max_plan_area_m2: float = MAX_PLAN_AREA_M2
+    calibration: ProbabilityCalibration | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.t_f_max <= self.t_o <= 1.0:
@@ -36,9 +46,15 @@ class ThresholdConfig:
 
 
 def free_threshold(observed_area_m2: float, config: ThresholdConfig = ThresholdConfig()) -> float:
-    """t_f = t_f_max · min(1, 10 · (observed area / max floor-plan area)^4)."""
+    """t_f = t_f_max · min(1, 10 · (observed area / max floor-plan area)^4), through the config's calibration map."""
     ratio = max(observed_area_m2, 0.0) / config.max_plan_area_m2
-    return config.t_f_max * min(1.0, 10.0 * ratio**4)
+    t_f = config.t_f_max * min(1.0, 10.0 * ratio**4)
+    return t_f if config.calibration is None else config.calibration.threshold(t_f)
+
+
+def occupied_threshold(config: ThresholdConfig = ThresholdConfig()) -> float:
+    """t_o, through the config's calibration map."""
+    return config.t_o if config.calibration is None else config.calibration.threshold(config.t_o)
 
 
 def threshold_probabilities(probabilities: np.ndarray, t_f: float, t_o: float) -> np.ndarray:
@@ -59,5 +75,7 @@ def thresholded_map(
     """M_thres: observed cells as observed, the others f_t of the prediction with the dynamic free threshold."""
     if probabilities.shape != observed_codes.shape:
         raise ValueError(f"probabilities {probabilities.shape} and observed map {observed_codes.shape} differ")
-    predicted = threshold_probabilities(probabilities, free_threshold(observed_area_m2, config), config.t_o)
+    predicted = threshold_probabilities(
+        probabilities, free_threshold(observed_area_m2, config), occupied_threshold(config)
+    )
     return np.where(observed_codes != UNKNOWN, observed_codes, predicted)

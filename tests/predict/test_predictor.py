@@ -16,7 +16,14 @@ from edge_explorer.backends.base import TensorSpec
 from edge_explorer.backends.card import ArtifactCard, CardError, write_card
 from edge_explorer.backends.chain import ModelLoadError, load_model
 from edge_explorer.mapping.ego import pad_shift
-from edge_explorer.predict.predictor import PredictorModelError, PredictorRuntime, card_thresholds, thresholds_of
+from edge_explorer.predict.predictor import (
+    PredictorModelError,
+    PredictorRuntime,
+    card_calibration,
+    card_thresholds,
+    thresholds_of,
+)
+from edge_explorer.predict.probability_calibration import ProbabilityCalibration
 from edge_explorer.predict.thresholding import ThresholdConfig
 from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
 
@@ -147,4 +154,34 @@ def test_bad_thresholds_in_the_card_are_refused(tmp_path, entry):
     card = write_predictor_model(tmp_path / "predictor")
     add_thresholds(card, entry)
     with pytest.raises(CardError, match="'thresholds' needs"):
+        PredictorRuntime(load_model(card, ORDER))
+
+
+def test_the_card_s_probability_calibration_is_applied_to_every_output_and_to_the_thresholds(tmp_path):
+    card = write_predictor_model(tmp_path / "predictor")
+    add_thresholds(card, {"t_f_max": 0.3, "t_o": 0.9})
+    calibration = ProbabilityCalibration("beta", a=0.6, b=-1.2, c=0.87)
+    doc = json.loads(card.read_text())
+    doc["calibration"] = {**calibration.to_json(), "val": {"ece_raw": 0.1}}  # extra keys are the card's record
+    card.write_text(json.dumps(doc))
+    assert card_calibration(card) == calibration
+    predictor = PredictorRuntime(load_model(card, ORDER))  # the artifacts' checks still pass: only a key was added
+    window = np.random.default_rng(0).choice([FREE, UNKNOWN, OCCUPIED], size=(WINDOW, WINDOW)).astype(CELL_DTYPE)
+    np.testing.assert_allclose(predictor(window), calibration(expected_probability(window)), atol=1e-6)
+    np.testing.assert_allclose(predictor.raw(window), expected_probability(window), atol=1e-6)
+    assert predictor.thresholds == ThresholdConfig(t_f_max=0.3, t_o=0.9, calibration=calibration)
+    assert thresholds_of(predictor).calibration == calibration  # every reader thresholds with the map
+    raw = predictor.uncalibrated()
+    assert raw.calibration is None and raw.thresholds == ThresholdConfig(t_f_max=0.3, t_o=0.9)
+    np.testing.assert_allclose(raw(window), expected_probability(window), atol=1e-6)
+    assert PredictorRuntime(load_model(card, ORDER), calibrated=False).thresholds == raw.thresholds
+
+
+@pytest.mark.parametrize("entry", [{"method": "isotonic", "params": {}}, {"method": "beta"}, [1, 2]])
+def test_a_bad_calibration_in_the_card_is_refused(tmp_path, entry):
+    card = write_predictor_model(tmp_path / "predictor")
+    doc = json.loads(card.read_text())
+    doc["calibration"] = entry
+    card.write_text(json.dumps(doc))
+    with pytest.raises(CardError, match="'calibration'"):
         PredictorRuntime(load_model(card, ORDER))
