@@ -29,11 +29,13 @@ REFERENCE = "frontier"
 
 
 def _correct_at_stop(record: dict[str, Any]) -> float:
-    return float(record.get("correct_coverage_at_stop", record["final_correct_coverage"]))
+    return float(
+        record["correct_coverage_at_stop"] if "correct_coverage_at_stop" in record else record["final_correct_coverage"]
+    )
 
 
 def _path_at_stop(record: dict[str, Any]) -> float:
-    return float(record.get("path_at_stop_m", record["path_length_m"]))
+    return float(record["path_at_stop_m"] if "path_at_stop_m" in record else record["path_length_m"])
 
 
 def _per_building(records: Sequence[dict[str, Any]], method: str) -> dict[str, float]:
