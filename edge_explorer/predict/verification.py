@@ -6,16 +6,18 @@ from what the flight has — the observed 0.20 m map, the fused map (observed �
 predictor's occupancy probabilities — how much area the map still *might have wrong or missing*:
 
 **Unknown reachable area.** The *open region* is the 4-connected component(s), holding the observed FREE cells, of
-the cells the vehicle could fly to or look into according to the fused map: fused FREE cells (observed or predicted
-free) and fused UNKNOWN cells within ``reach_m`` of a fused FREE cell. Fused OCCUPIED cells (observed or predicted)
-bound it. Its UNKNOWN cells are the unknown reachable area: space behind a frontier that the vehicle could still
-fly into or see. Two things are left out on purpose:
+the cells the vehicle could fly to or look into: fused FREE cells (observed or predicted free), and cells not known
+free — fused UNKNOWN, or OCCUPIED by prediction only — within ``reach_m`` (default the sensor's 4.5 m range,
+measured in 4-connected steps through such cells, so never through a wall) of that free space. Only *observed*
+OCCUPIED cells bound it: a predicted wall never seals space off (a doorway predicted shut must not hide the room
+behind it). Its fused UNKNOWN cells are the unknown reachable area: space behind a frontier that the vehicle could
+still fly into or see. Two things are left out on purpose:
 
-* unknown space sealed off by walls (the inside of tall furniture, space outside a closed outer wall): no flight
-  can ever see it, so waiting for it would never end — Nearest Frontier's own end;
-* unknown space deeper than ``reach_m`` behind a frontier: it still counts up to that depth, which is enough to keep
-  the rule from stopping (the thresholds are a few m²), and it keeps the figure finite where the map is open to the
-  outside (a gap in an outer wall, a map much larger than the building, as in the daemon).
+* unknown space sealed off by observed walls (the inside of tall furniture, space outside a closed outer wall): no
+  flight can ever see it, so waiting for it would never end — Nearest Frontier's own end;
+* unknown space deeper than ``reach_m`` behind the free space: it still counts up to that depth — a room behind a
+  doorway counts some 15–20 m², far above the threshold — and the figure stays finite where the map is open to
+  the outside (a gap in an outer wall, a map much larger than the building, as in the daemon).
 
 4-connectivity keeps the region from slipping through the diagonal gaps that 0.20 m walls leave at their corners.
 
@@ -42,7 +44,7 @@ import numpy as np
 
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN
 
-DEFAULT_REACH_M = 2.0  # depth behind a frontier up to which unknown space counts (see the module docstring)
+DEFAULT_REACH_M = 4.5  # depth behind the free space up to which unseen space counts: the sensor range
 
 # The map stop rule's threshold on UnverifiedArea.total_m2. Chosen on the generated val split (never test or the
 # real plans): scripts/stop_threshold_sweep.py flew 20 val plans × 1 run with frontier, frontier+pred and drl+pred
@@ -68,11 +70,12 @@ class UnverifiedArea:
 def open_region(observed_low: np.ndarray, fused_low: np.ndarray, resolution_m: float, reach_m: float) -> np.ndarray:
     """Bool mask: the open region of the module docstring (empty when nothing is observed free).
 
-    A flood from the observed FREE cells, 4-connected: through fused FREE cells without limit, into fused UNKNOWN
-    cells up to ``reach_m`` (counted in 4-connected steps, so it never measures through a wall) from the free space
-    it came from; a free area it meets there joins and the flood goes on from it."""
+    A flood from the observed FREE cells, 4-connected: through fused FREE cells without limit, into cells not known
+    free — fused UNKNOWN, or OCCUPIED by prediction only — up to ``reach_m`` (counted in 4-connected steps, so it
+    never measures through a wall) from the free space it came from; a free area it meets there joins and the flood
+    goes on from it. Only observed OCCUPIED cells stop it."""
     free = (fused_low == FREE).astype(np.uint8)
-    unknown = (fused_low == UNKNOWN).astype(np.uint8)
+    limited = ((fused_low != FREE) & (observed_low != OCCUPIED)).astype(np.uint8)
     steps = max(int(round(reach_m / resolution_m)), 0)
     _, free_labels = cv2.connectedComponents(free, connectivity=4)
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
@@ -86,7 +89,7 @@ def open_region(observed_low: np.ndarray, fused_low: np.ndarray, resolution_m: f
         joined |= np.isin(free_labels, labels)
         region = joined.astype(np.uint8)
         for _ in range(steps):  # geodesic dilation into the unknown, one 4-connected step at a time
-            grown = cv2.dilate(region, cross) & (unknown | region)
+            grown = cv2.dilate(region, cross) & (limited | region)
             if np.array_equal(grown, region):
                 break
             region = grown
