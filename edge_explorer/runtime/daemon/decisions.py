@@ -226,8 +226,8 @@ class DecisionPipeline:
             )
             self.predictor = None
             return None
+        self.probabilities = probabilities
         with self.timings.timed("thresholding"):
-            self.probabilities = probabilities
             return thresholded_map(probabilities, maps.low, maps.observed_area_m2(), self.config.thresholds)
 
     @contextmanager

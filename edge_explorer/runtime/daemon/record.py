@@ -100,13 +100,13 @@ class RunRecord:
             self.path_length_m += math.dist(self.path[-1], xy)
         self.path.append(xy)
         coverage = correct = None
-        with self.timings.timed("coverage"):
+        with self.timings.timed("coverage"):  # the maps' completeness: against the plan if known, and by themselves
             fused = maps.low if thresholded is None else thresholded
             self.unverified = unverified_area_m2(maps.low, fused, probabilities, maps.low_grid.resolution_m)
-        if self.truth is not None:
-            with self.timings.timed("coverage"):
+            if self.truth is not None:
                 self.metrics = self.truth.metrics(maps.low, maps.low_grid, thresholded)
                 observed = self.metrics if thresholded is None else self.truth.metrics(maps.low, maps.low_grid, None)
+        if self.truth is not None:
             coverage, correct = self.metrics.coverage, self.metrics.correct_coverage
             self.observed_coverage = observed.coverage
             if self.path_at_goal_m is None and coverage >= self.coverage_goal:
