@@ -22,13 +22,15 @@ still fly into or see. Two things are left out on purpose:
 4-connectivity keeps the region from slipping through the diagonal gaps that 0.20 m walls leave at their corners.
 
 **Expected wrong predicted area.** Over the cells known only by prediction (UNKNOWN in the observed map, FREE or
-OCCUPIED in the fused map) near the building — in or next to (8-neighbours) the open region or the region the
-fused map encloses (cells the map border cannot be reached from without crossing a fused OCCUPIED cell) — the sum
-of P(wrong) × cell area, with P(wrong) = p_occ for a predicted-free cell and 1 − p_occ for a predicted-occupied one
-(the predictor's probabilities as the flight has them; calibrated ones make this an honest expectation). Predicted
-cells far out in the exterior (the predictor paints the outside of a building solid) do not count: the flight
-neither needs nor can check them. Without a predictor there are no predicted cells and the rule is Nearest
-Frontier's: no reachable unknown space left.
+OCCUPIED in the fused map) near the building — in or next to (8-neighbours) the open region (which takes in
+predicted walls up to ``reach_m`` from the free space) or the region the fused map encloses (cells the map border
+cannot be reached from without crossing a fused OCCUPIED cell) — the sum of P(wrong) × cell area, with P(wrong) =
+p_occ for a predicted-free cell and 1 − p_occ for a predicted-occupied one (the predictor's probabilities as the
+flight has them; calibrated ones make this an honest expectation). Predicted cells behind observed walls or far out
+in the exterior (the predictor paints the outside of a building solid) do not count: the flight neither needs nor
+can check them. A prediction that is confidently wrong (p ≈ 1 over a whole unseen room) counts next to nothing:
+the rule is only as good as the probabilities' calibration. Without a predictor there are no predicted cells and
+the rule is Nearest Frontier's: no reachable unknown space left.
 
 The stop rule: exploration ends when :attr:`UnverifiedArea.total_m2` is below a threshold (m²), chosen on the
 validation split (:data:`DEFAULT_STOP_THRESHOLD_M2`). Pure numpy + OpenCV, on-device (docs/design.md §2).
