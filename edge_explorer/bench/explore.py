@@ -11,7 +11,9 @@ sampler with a seed derived from the benchmark seed and the building's name
 differ by the sensor- and motion-noise seed (:func:`~edge_explorer.world.seeds.run_seed`). A run
 (:func:`~edge_explorer.sim.episode.run_episode`) ends when coverage and correct coverage both reach the goal (95 %),
 when the planner has nothing left to explore, or at the step cap. Every step's coverage, correct coverage and path
-length are recorded.
+length are recorded. With ``stop="map"`` (``--stop map``) the goal, which needs the truth, is replaced by the map
+stop rule, which does not (issue #56): the run ends when the maps' unverified area falls below a threshold, and its
+record says how right the map was there (false stops: correct coverage below 90 %).
 
 Runs go to worker processes; with an output folder each finished run is written there as a small JSON record and a
 rerun skips the runs already recorded with the same settings (:func:`run_benchmark`). The records are summed up —
@@ -33,8 +35,9 @@ from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.learn.loaders import load_policy, load_predictor
 from edge_explorer.plan.goal_policy import GoalPolicy
 from edge_explorer.plan.registry import PLANNERS
+from edge_explorer.predict.verification import DEFAULT_STOP_THRESHOLD_M2
 from edge_explorer.sim.env import Predictor
-from edge_explorer.sim.runs import PRED_SUFFIX, RECORD_FORMAT, RunSpec, run_episode
+from edge_explorer.sim.runs import PRED_SUFFIX, RECORD_FORMAT, STOP_MODES, RunSpec, run_episode
 from edge_explorer.sim.starts import start_pose
 from edge_explorer.world.raster import PlanRaster
 from edge_explorer.world.seeds import run_seed
@@ -42,14 +45,20 @@ from edge_explorer.world.seeds import run_seed
 
 @dataclass(frozen=True)
 class BenchConfig:
-    """When a run ends."""
+    """When a run ends: ``stop`` "truth" at the coverage goal (coverage and correct coverage against the plan), or
+    "map" when the map stop rule says the map is verified (unverified area below ``stop_threshold_m2``, issue #56,
+    :mod:`edge_explorer.predict.verification`); either way when the planner has nothing left or at ``max_steps``."""
 
     coverage_goal: float = 0.95
     max_steps: int = 1500
+    stop: str = "truth"
+    stop_threshold_m2: float = DEFAULT_STOP_THRESHOLD_M2
 
     def __post_init__(self) -> None:
         if not 0 < self.coverage_goal <= 1 or self.max_steps < 1:
             raise ValueError("coverage_goal must be in (0, 1] and max_steps ≥ 1")
+        if self.stop not in STOP_MODES or not self.stop_threshold_m2 >= 0:
+            raise ValueError(f"stop must be one of {STOP_MODES} and stop_threshold_m2 ≥ 0")
 
 
 # ---- methods, seeds, starts ---------------------------------------------------------------------------------------
@@ -109,6 +118,8 @@ def plan_specs(
                         config.max_steps,
                         predictor if method.endswith(PRED_SUFFIX) else None,
                         policy if needs_policy(method) else None,
+                        config.stop,
+                        config.stop_threshold_m2 if config.stop == "map" else None,
                     )
                 )
     return specs
@@ -144,7 +155,8 @@ def _read_record(path: Path, spec: RunSpec) -> dict[str, Any] | None:
         record = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError):
         return None
-    stored = {"policy": None, **record.get("spec", {})}  # records from before the drl methods have no policy
+    # records from before the drl methods have no policy, those from before the map stop rule no stop settings
+    stored = {"policy": None, "stop": "truth", "stop_threshold_m2": None, **record.get("spec", {})}
     if record.get("format") != RECORD_FORMAT or stored != json.loads(json.dumps(asdict(spec))):
         return None
     return record

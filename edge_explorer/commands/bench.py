@@ -37,6 +37,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     explore.add_argument("--seed", type=int, default=0, help="benchmark seed: start poses and noise (default 0)")
     explore.add_argument("--max-steps", type=positive_int, default=1500, help="step cap per run (default 1500)")
     explore.add_argument(
+        "--stop",
+        choices=("truth", "map"),
+        default="truth",
+        help="what ends a run besides the planner running out and --max-steps: truth = 95 %% coverage and correct "
+        "coverage against the plan (default); map = the map stop rule, the maps' unverified area below "
+        "--stop-threshold-m2 (no truth; false stops are counted against it)",
+    )
+    explore.add_argument(
+        "--stop-threshold-m2",
+        type=float,
+        help="the map stop rule's threshold on the unverified area, m² (default: the value chosen on val, "
+        "edge_explorer.predict.verification.DEFAULT_STOP_THRESHOLD_M2)",
+    )
+    explore.add_argument(
         "--predictor",
         help="the +pred methods' predictor: a model folder with card.json (e.g. models/predictor), a .safetensors "
         "file, or module:callable",
@@ -78,7 +92,14 @@ def _explore(args: argparse.Namespace) -> int:
         bench.load_predictor(args.predictor)  # fail now, with one line, not in a worker
     if args.policy is not None:
         bench.load_policy(args.policy)
-    config = bench.BenchConfig(max_steps=args.max_steps)
+    from edge_explorer.bench.stops import markdown_stops, stop_summary
+    from edge_explorer.errors import EdgeExplorerError
+    from edge_explorer.predict.verification import DEFAULT_STOP_THRESHOLD_M2
+
+    if args.stop_threshold_m2 is not None and (args.stop != "map" or args.stop_threshold_m2 < 0):
+        raise EdgeExplorerError("--stop-threshold-m2 takes a value ≥ 0 and goes with --stop map")
+    threshold = DEFAULT_STOP_THRESHOLD_M2 if args.stop_threshold_m2 is None else args.stop_threshold_m2
+    config = bench.BenchConfig(max_steps=args.max_steps, stop=args.stop, stop_threshold_m2=threshold)
     rasters = load_buildings(args.plans)
     specs = bench.plan_specs(rasters, methods, args.runs, args.seed, config, args.predictor, args.policy)
     workers = args.workers or bench.default_workers()
@@ -98,6 +119,9 @@ def _explore(args: argparse.Namespace) -> int:
     command = "edge-explorer " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("edge-explorer") else None
     failed = failures(records)
     table += markdown_failures(failed)
+    stops = stop_summary(records, methods) if config.stop == "map" else None
+    if stops is not None:
+        table += markdown_stops(stops, threshold)
     print(table, end="")
     print(f"{len(records)} runs, {len(failed)} without 95 % coverage or with a collision")
     if args.markdown is not None:
@@ -120,7 +144,9 @@ def _explore(args: argparse.Namespace) -> int:
                 "max_steps": config.max_steps,
                 "predictor": args.predictor,
                 "policy": args.policy,
+                **({"stop": "map", "stop_threshold_m2": threshold} if config.stop == "map" else {}),
             },
+            **({"stops": stops} if stops is not None else {}),
             "summary": summary,
             "paired": paired,
             "failures": failed,

@@ -57,6 +57,10 @@ def run_summary(
         "path_length_m": report.path_length_m,
         "path_at_goal_m": report.path_at_goal_m,
         "coverage_goal": daemon.config.coverage_goal,
+        "verified_m2": report.verified_m2,
+        "unverified_m2": report.unverified_m2,
+        "unverified": report.unverified,
+        "stop_threshold_m2": daemon.config.stop_threshold_m2,
         "collisions": collisions,
         "returned_home": report.returned_home,
         "exploration_s": report.exploration_s,
@@ -89,8 +93,18 @@ def explain_ending(report: Any, daemon: Any) -> dict[str, Any] | None:
     """Why the flight ended where it did (issue #18), like the benchmark's records: the goal, a time limit or a stop
     with the N_M area still unknown, or the planner finding nothing left while N_M cells were unknown (a planner
     stall), split into what the vehicle could have flown into and what it could only have seen from elsewhere.
-    None without a plan to measure against. Space no flight can reach or see is not in N_M (``plans check``)."""
+    Without a plan: the map stop rule's ending, "map says verified", with the areas the maps believe verified and
+    still unverified (issue #56); None for any other ending. Space no flight can reach or see is not in N_M
+    (``plans check``)."""
+    from edge_explorer.runtime.daemon.phases import MAP_STOP_ENDING  # here: draw_run's child imports this module
+
     truth, view = daemon.truth, daemon.view
+    if truth is None and report.ending == MAP_STOP_ENDING and report.unverified_m2 is not None:
+        text = (
+            f"map says verified: {report.unverified_m2:.1f} m² unverified (below {daemon.config.stop_threshold_m2:g} "
+            f"m²), {report.verified_m2:.1f} m² verified"
+        )
+        return {"reason": "map_verified", "text": text, "verified_m2": report.verified_m2, **(report.unverified or {})}
     if truth is None or view is None or report.coverage is None:
         return None
     known = view.thresholded if view.thresholded is not None else view.low
@@ -157,12 +171,17 @@ def print_summary(s: dict[str, Any]) -> None:
         f"(correct {pct(s['correct_coverage'])}, observed {pct(s.get('observed_coverage'))}), "
         f"path {s['path_length_m']:.1f} m "
         f"(at {pct(s['coverage_goal'])}: {at_goal}), "
+        f"map {_m2(s.get('verified_m2'))} verified, {_m2(s.get('unverified_m2'))} unverified, "
         f"collisions {s['collisions']}, decisions {s['decisions']}, decision latency p50 {latency['p50']:.1f} ms "
         f"p95 {latency['p95']:.1f} ms, CPU {s['cpu']['daemon_percent_of_one_core']:.1f} % of one core "
         f"(process {s['cpu']['process_percent_of_one_core']:.1f} %), peak RSS {s['peak_rss_mb']:.0f} MB"
         + _rss_split(s.get("rss_at_end_mb", {})),
         flush=True,
     )
+
+
+def _m2(value: float | None) -> str:
+    return "–" if value is None else f"{value:.1f} m²"
 
 
 def _why(s: dict[str, Any]) -> str:

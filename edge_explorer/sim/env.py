@@ -185,6 +185,7 @@ class ExplorationEnv(gym.Env):
         self._truth: _PlanTruth | None = None
         self._plan_index = -1
         self._maps: ObservedMaps | None = None
+        self._probabilities: np.ndarray | None = None
 
     # ---- public helpers ------------------------------------------------------------------------------------------
     def set_thresholds(self, thresholds: ThresholdConfig) -> None:
@@ -207,6 +208,14 @@ class ExplorationEnv(gym.Env):
         """M_thres on the 0.20 m grid (observed ∪ thresholded prediction)."""
         self._require_reset()
         return self._thres
+
+    @property
+    def probabilities_low(self) -> np.ndarray | None:
+        """The predictor's occupancy probabilities on the 0.20 m grid at the last step (NaN where its window does
+        not reach); None without a predictor. The map stop rule reads them
+        (:mod:`edge_explorer.predict.verification`)."""
+        self._require_reset()
+        return self._probabilities
 
     def unexplored(self) -> tuple[np.ndarray, np.ndarray]:
         """Bool masks on the 0.20 m grid: N_M cells still UNKNOWN in M_thres, and those of them holding a cell the
@@ -360,6 +369,7 @@ class ExplorationEnv(gym.Env):
         assert truth is not None and maps is not None
         if self.predictor is None:
             self._thres = maps.low
+            self._probabilities = None
             return map_metrics(maps.low, truth.truth_low, truth.interior_low)
         low_cell = self._cell(maps.low_grid)
         window = ego.pad_shift(maps.low, low_cell, ego.PREDICTOR_WINDOW_CELLS)
@@ -367,6 +377,7 @@ class ExplorationEnv(gym.Env):
         if probabilities.shape != window.shape:
             raise ValueError(f"predictor returned shape {probabilities.shape}, expected {window.shape}")
         on_map = ego.unshift(probabilities, low_cell, maps.low.shape)
+        self._probabilities = on_map
         self._thres = thresholded_map(on_map, maps.low, maps.observed_area_m2(), self._thresholds)
         return map_metrics(maps.low, truth.truth_low, truth.interior_low, self._thres)
 

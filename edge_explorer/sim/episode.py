@@ -4,7 +4,9 @@ Every simulated flight of a planner — the benchmark's runs (:mod:`edge_explore
 demonstrations (:mod:`edge_explorer.learn.goal_demos`), the goal environment's replay of the agent's goals
 (:mod:`edge_explorer.learn.goal_env`) — runs the same loop, :class:`Episode`:
 
-1. stop with ``"goal"`` when coverage *and* correct coverage have reached the coverage goal;
+1. stop with ``"goal"`` when coverage *and* correct coverage have reached the coverage goal — or, when the loop is
+   given a ``map_stop`` rule (the benchmark's ``--stop map``, issue #56), instead with ``"map_stop"`` when that rule
+   says the map is verified (it reads the maps only, never the truth: :mod:`edge_explorer.predict.verification`);
 2. stop with ``"step_cap"`` when the simulator has taken ``max_steps`` steps since its reset;
 3. ask the planner for the next action (``act(maps, pose, previous_action, fused_low)``); stop with ``"explored"``
    when it answers ``None``, it has nothing left to explore;
@@ -22,7 +24,7 @@ action table, stopped by the walls, which :class:`~edge_explorer.sim.env.Explora
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
@@ -34,7 +36,7 @@ from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.grid import GridSpec
 
 Pose = tuple[float, float, float]  # x_m, y_m, yaw_rad in the plan's map frame
-Ending = Literal["goal", "step_cap", "explored"]
+Ending = Literal["goal", "step_cap", "explored", "map_stop"]
 
 
 class Planner(Protocol):
@@ -112,11 +114,15 @@ class Episode:
         coverage_goal: float,
         max_steps: int,
         previous: int = int(dynamics.Action.HOVER),
+        map_stop: Callable[[], bool] | None = None,
     ) -> None:
+        """``map_stop``: when given, called once before every step (and after the last); ``True`` ends the flight
+        with ``"map_stop"``, and the coverage goal no longer ends it."""
         self.sim = sim
         self.planner = planner
         self.coverage_goal = coverage_goal
         self.max_steps = max_steps
+        self.map_stop = map_stop
         self.info = info  # the simulator's info after the last step (the reset's before the first)
         self.previous = previous  # the previous_action of the next step
         self.collisions = 0
@@ -150,8 +156,10 @@ class Episode:
         return self.ending
 
     def _ending(self) -> Ending | None:
-        goal = self.coverage_goal
-        if self.info["coverage"] >= goal and self.info["correct_coverage"] >= goal:
+        if self.map_stop is not None:
+            if self.map_stop():
+                return "map_stop"
+        elif self.info["coverage"] >= self.coverage_goal and self.info["correct_coverage"] >= self.coverage_goal:
             return "goal"
         if self.info["steps"] >= self.max_steps:
             return "step_cap"

@@ -48,6 +48,7 @@ from edge_explorer.runtime.daemon import (
     frame_problem,
 )
 from edge_explorer.runtime.depth_sources import DepthFrame
+from edge_explorer.runtime.flight_summary import explain_ending
 from edge_explorer.runtime.mavlink_link import LinkConfig, LinkStatus, MavlinkLink, Pose
 from edge_explorer.sim.camera import DepthCamera
 from edge_explorer.sim.depth_source import SimulatedDepthSource
@@ -227,8 +228,10 @@ def fly(
     source: Callable[[SimulatedDepthSource], object] = lambda s: s,
     policy: PolicyRuntime | None = None,
     predictor: PredictorRuntime | None = None,
+    truth: bool = True,
 ) -> Flight:
-    """Fly the daemon on the two-room plan; ``during`` runs in the test's thread once the daemon explores."""
+    """Fly the daemon on the two-room plan; ``during`` runs in the test's thread once the daemon explores.
+    ``truth=False``: without the plan, as on a real drone (no coverage; the map stop rule ends exploration)."""
     vehicle_config = VehicleConfig(start_xyz_m=START_XYZ, start_yaw_rad=0.0)
     with SimulatedVehicle(vehicle_config, raster) as vehicle:
         proxy = UdpRelay(vehicle.address[1]) if relay else None
@@ -243,7 +246,7 @@ def fly(
                     frames,
                     policy=policy,
                     predictor=predictor,
-                    truth=CoverageTruth(raster),
+                    truth=CoverageTruth(raster) if truth else None,
                     region=VoxelRegion.covering(raster.grid),
                 )
                 outcome: dict[str, object] = {}
@@ -303,6 +306,23 @@ def test_explores_reaches_the_coverage_goal_and_flies_home(raster, camera, tmp_p
     wall_distance_m = cv2.distanceTransform(free_cells, cv2.DIST_L2, 5) * raster.grid.resolution_m
     observed = align_to_grid(view.high, view.high_grid, raster.grid)
     assert not (observed == OCCUPIED)[wall_distance_m > 0.15].any()
+
+
+@pytest.mark.slow
+def test_without_a_plan_the_map_stop_rule_ends_exploration(raster, camera, tmp_path):
+    """No plan of the building (issue #56): no coverage to measure, so the maps' own unverified area ends
+    exploration ("map says verified") and the report gives the areas the maps believe verified and unverified."""
+    # a threshold for a 12 m² building flown for seconds (the default is sized for the 21 × 11 m plans)
+    config = replace(CONFIG, time_limit_s=25.0, stop_threshold_m2=8.0)
+    flight = fly(raster, camera, tmp_path, config, truth=False)
+    report = flight.report
+    assert report.ending == "map says verified" and report.coverage is None
+    assert report.exploration_s is not None and report.exploration_s < 25.0
+    assert report.unverified_m2 is not None and report.unverified_m2 < 8.0
+    assert report.verified_m2 is not None and report.verified_m2 > 8.0  # the two rooms: 4 m × 3 m
+    assert flight.vehicle.collisions == 0
+    why = explain_ending(report, flight.daemon)
+    assert why is not None and why["reason"] == "map_verified" and why["text"].startswith("map says verified")
 
 
 @pytest.mark.slow

@@ -227,7 +227,8 @@ def test_the_run_record_sums_decisions_frames_holds_path_and_stages():
     assert report.path_length_m == pytest.approx(6.0) and len(report.path_xy_m) == 4
     assert [t for t, *_ in report.timeline] == [1.0, 2.0, 3.0, 4.0] and report.coverage is None
     assert report.stages["decision"].count == 2 and report.stages["decision"].mean_ms == pytest.approx(20.0)
-    assert set(report.stages) == {"decision"}
+    assert set(report.stages) == {"decision", "coverage"}  # the maps' unverified area is measured without a plan
+    assert report.stages["coverage"].count == 4  # (issue #56)
     progress = record.progress(105.0, "returning", None)
     assert (progress.elapsed_s, progress.decisions, progress.path_length_m) == (5.0, 3, pytest.approx(6.0))
     assert progress.decision_p95_ms == pytest.approx(29.0)
@@ -386,3 +387,45 @@ def test_decisions_explore_until_the_time_limit_then_hold(clock):
     assert (phases.phase, phases.state.ending) == ("home", "time limit")
     assert record.sources == {"frontier": 1, "hold": 1} and len(record.path) == 2
     assert pipeline.previous_action == Action.HOVER and pipeline.feeder.end_s is not None
+
+
+# ---- the map stop rule without a plan (issue #56) ----------------------------------------------------------------
+
+
+def test_without_a_plan_the_map_stop_rule_ends_exploration(clock):
+    phases, state, _ = _phases(FakeLink(Pose(10.0, 1.0, 1.0, 1.5, 0.0)), replace(CONFIG, stop_threshold_m2=3.0))
+    phases.climb()
+    clock.now += 5.0
+    phases.check_takeoff_done(Pose(10.0, 1.0, 1.0, CONFIG.flight_height_m, 0.0), "frontier")
+    phases.check_end_of_exploration(clock.now, None, 12.0)  # 12 m² unverified: go on
+    phases.check_end_of_exploration(clock.now, 0.5, 1.0)  # with a plan the coverage goal decides, not the map
+    assert state.phase == "exploring"
+    phases.check_end_of_exploration(clock.now, None, 2.5)
+    assert (state.phase, state.ending) == ("home", "map says verified")
+    with pytest.raises(ValueError, match="stop_threshold_m2"):
+        replace(CONFIG, stop_threshold_m2=-1.0)
+
+
+def test_the_record_measures_the_unverified_area_without_a_plan():
+    record = _record()
+    maps = ObservedMaps.empty(GridSpec((0.0, 0.0), 0.05, (80, 80)))
+    record.record_progress(100.0, Pose(100.0, 1.0, 1.0, 1.0, 0.0), maps, None, "exploring")
+    assert record.unverified_m2 == float("inf")  # nothing seen: nothing verified
+    maps.high[8:72, 8:72] = 1  # a closed room, seen whole: walls …
+    maps.high[12:68, 12:68] = FREE  # … around free space
+    maps.low[:] = 0
+    maps.low[2:18, 2:18] = 1
+    maps.low[3:17, 3:17] = FREE
+    record.record_progress(101.0, Pose(101.0, 1.0, 1.0, 1.0, 0.0), maps, None, "exploring")
+    assert record.unverified_m2 == 0.0 and record.coverage is None
+    report = record.report(
+        1.0,
+        0.1,
+        ending="map says verified",
+        planner="frontier",
+        predictor=False,
+        exploration_s=1.0,
+        returned_home=False,
+    )
+    assert report.unverified_m2 == 0.0 and report.verified_m2 == pytest.approx(16 * 16 * 0.04)
+    assert report.unverified == {"unknown_reachable_m2": 0.0, "expected_wrong_m2": 0.0, "predicted_m2": 0.0}

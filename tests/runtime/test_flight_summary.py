@@ -68,3 +68,16 @@ def test_the_picture_marks_the_unexplored_cells(tmp_path):
     orange = (a[..., 0] > 0.9) & (a[..., 1] > 0.45) & (a[..., 1] < 0.75) & (a[..., 2] < 0.35)
     orange_b = (b[..., 0] > 0.9) & (b[..., 1] > 0.45) & (b[..., 1] < 0.75) & (b[..., 2] < 0.35)
     assert orange.sum() > 1000 and orange_b.sum() < orange.sum() / 10
+
+
+def test_without_a_plan_the_map_stop_is_named_with_the_areas():
+    daemon = SimpleNamespace(truth=None, view=None, config=SimpleNamespace(coverage_goal=0.95, stop_threshold_m2=4.0))
+    parts = {"unknown_reachable_m2": 1.2, "expected_wrong_m2": 0.8, "predicted_m2": 9.0}
+    report = SimpleNamespace(
+        coverage=None, ending="map says verified", unverified_m2=2.0, verified_m2=150.0, unverified=parts
+    )
+    why = explain_ending(report, daemon)
+    assert why["reason"] == "map_verified" and why["verified_m2"] == 150.0 and why["expected_wrong_m2"] == 0.8
+    assert why["text"] == "map says verified: 2.0 m² unverified (below 4 m²), 150.0 m² verified"
+    report.ending = "time limit"
+    assert explain_ending(report, daemon) is None

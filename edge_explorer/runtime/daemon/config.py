@@ -11,6 +11,7 @@ from edge_explorer.mapping.voxels import FusionConfig
 from edge_explorer.plan.follow import FollowConfig
 from edge_explorer.plan.registry import PLANNERS
 from edge_explorer.predict.thresholding import ThresholdConfig
+from edge_explorer.predict.verification import DEFAULT_STOP_THRESHOLD_M2
 from edge_explorer.runtime.mavlink_link import PX4_OFFBOARD_MODE
 from edge_explorer.world.grid import LOW_RES_M
 
@@ -46,6 +47,9 @@ class DaemonConfig:
     # "predfrontier" (the predictive expert: goals on the fused map, docs/design.md §5).
     exploration_planner: str = "frontier"
     frontier_retries: int = 1  # times the planner's dropped targets get another chance before "explored"
+    # Without a plan of the building (no coverage to measure), exploration ends when the maps' unverified area
+    # (predict/verification.py: unknown reachable + expected wrong predicted area) falls below this, m² (issue #56).
+    stop_threshold_m2: float = DEFAULT_STOP_THRESHOLD_M2
     progress_every_s: float = 5.0
     band: HeightBand = field(default_factory=HeightBand)
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -65,6 +69,8 @@ class DaemonConfig:
             raise ValueError(f"coverage_goal must be in (0, 1], got {self.coverage_goal}")
         if self.autopilot not in AUTOPILOT_MODES:
             raise ValueError(f"autopilot must be one of {sorted(AUTOPILOT_MODES)}, got {self.autopilot!r}")
+        if not self.stop_threshold_m2 >= 0:
+            raise ValueError(f"stop_threshold_m2 must be ≥ 0, got {self.stop_threshold_m2}")
         if self.frontier_retries < 0:
             raise ValueError(f"frontier_retries must be ≥ 0, got {self.frontier_retries}")
         if self.setpoint_rate_hz < 10:

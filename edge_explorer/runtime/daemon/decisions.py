@@ -118,6 +118,7 @@ class DecisionPipeline:
         self.predictor = predictor
         self.planner = make_planner(config, table, policy, timings)
         self.view: DecisionView | None = None
+        self.probabilities: np.ndarray | None = None  # the latest prediction on the low-res grid
         self._previous_action = int(Action.HOVER)
         self._frontier_retries = 0
         self._candidate_s = 0.0
@@ -175,9 +176,9 @@ class DecisionPipeline:
         thresholded = None
         if not predict_after:
             thresholded = self.predict(maps, low_cell)
-            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase)
+            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase, self.probabilities)
         if self.phases.phase == "exploring":
-            self.phases.check_end_of_exploration(now, self.record.coverage)
+            self.phases.check_end_of_exploration(now, self.record.coverage, self.record.unverified_m2)
         self._candidate_s = 0.0
         start = time.perf_counter()
         planner = WaypointPlanner(self.table, FreeSpace.from_codes(high, high_grid), cfg.follow.safe_distance_m)
@@ -197,7 +198,7 @@ class DecisionPipeline:
         self.timings.add("decision_cpu", time.thread_time() - frame_in_cpu_s)
         if predict_after:
             thresholded = self.predict(maps, low_cell)
-            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase)
+            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase, self.probabilities)
         self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
         log.debug(
             "decision %d: %s %s → (%.2f, %.2f)",
@@ -209,7 +210,9 @@ class DecisionPipeline:
         )
 
     def predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
-        """Observed ∪ thresholded prediction on the low-res grid (docs/design.md §5); None without a predictor."""
+        """Observed ∪ thresholded prediction on the low-res grid (docs/design.md §5); None without a predictor. The
+        probabilities stay in :attr:`probabilities` (for the map stop rule's expected wrong area)."""
+        self.probabilities = None
         if self.predictor is None:
             return None
         try:
@@ -223,6 +226,7 @@ class DecisionPipeline:
             )
             self.predictor = None
             return None
+        self.probabilities = probabilities
         with self.timings.timed("thresholding"):
             return thresholded_map(probabilities, maps.low, maps.observed_area_m2(), self.config.thresholds)
 

@@ -2,9 +2,11 @@
 
 **Take-off**: wait for the autopilot's heartbeat and odometry, engage OFFBOARD (PX4) or GUIDED with a take-off
 (ArduPilot), start the voxel maps around the take-off point (home) and climb to flight height on a minimum-jerk
-segment. **Exploring** until the coverage goal, the time limit, or the frontier planner has nothing left
-(:meth:`FlightPhases.finish_exploring`). **Returning**: along a path home over observed free space, with the same
-six actions, until there or ``return_time_limit_s``. **Home**: hover for ``home_hover_s``, then done.
+segment. **Exploring** until the coverage goal (with a plan of the building), the map stop rule (without one: the
+maps' unverified area below ``stop_threshold_m2``, :mod:`edge_explorer.predict.verification`), the time limit, or
+the frontier planner has nothing left (:meth:`FlightPhases.finish_exploring`). **Returning**: along a path home
+over observed free space, with the same six actions, until there or ``return_time_limit_s``. **Home**: hover for
+``home_hover_s``, then done.
 
 **Holding** (:meth:`FlightPhases.enter_hold`): on any input problem the watchdog reports, the setpoint stream
 stops and the link holds the latest odometry pose; the daemon resumes when the input is back (restarting the climb
@@ -35,6 +37,7 @@ from edge_explorer.runtime.mavlink_link import Pose as Odometry
 from edge_explorer.vehicle.dynamics import ActionTable
 
 log = logging.getLogger(__name__)
+MAP_STOP_ENDING = "map says verified"  # the ending of an exploration the map stop rule ended (issue #56)
 
 
 class FlightPhases:
@@ -194,11 +197,15 @@ class FlightPhases:
         end_s = self.feeder.end_s
         return end_s is None or now >= end_s - self.config.decision_lead_s
 
-    def check_end_of_exploration(self, now: float, coverage: float | None) -> None:
-        """End exploration at the coverage goal (``coverage``: the latest, None without a plan) or the time limit."""
+    def check_end_of_exploration(self, now: float, coverage: float | None, unverified_m2: float | None = None) -> None:
+        """End exploration at the coverage goal (``coverage``: the latest, None without a plan), by the map stop rule
+        when there is no plan (``unverified_m2``: the latest unverified area, below ``stop_threshold_m2``: "map says
+        verified") or at the time limit."""
         assert self._explore_start_s is not None
         if coverage is not None and coverage >= self.config.coverage_goal:
             self.finish_exploring("coverage goal")
+        elif coverage is None and unverified_m2 is not None and unverified_m2 < self.config.stop_threshold_m2:
+            self.finish_exploring(MAP_STOP_ENDING)
         elif now - self._explore_start_s >= self.config.time_limit_s:
             self.finish_exploring("time limit")
 

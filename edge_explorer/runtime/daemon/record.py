@@ -15,7 +15,8 @@ import numpy as np
 
 from edge_explorer.mapping.metrics import MapMetrics
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.runtime.daemon.report import CoverageTruth, Progress, RunReport, StageTimings
+from edge_explorer.predict.verification import UnverifiedArea, unverified_area_m2
+from edge_explorer.runtime.daemon.report import CoverageTruth, Progress, RunReport, StageTimings, unverified_parts
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
 
 Timeline = list[tuple[float, float | None, float | None, float, float | None]]  # (t_s, coverage, correct, path_m,
@@ -42,8 +43,14 @@ class RunRecord:
         self.path_length_m = 0.0
         self.path_at_goal_m: float | None = None
         self.observed_coverage: float | None = None
+        self.unverified: UnverifiedArea | None = None  # the maps' own estimate at the latest decision (issue #56)
         self.timeline: Timeline = []
         self.source_cpu_s = 0.0
+
+    @property
+    def unverified_m2(self) -> float | None:
+        """The latest decision's unverified area (m², the map stop rule's figure); None before one."""
+        return None if self.unverified is None else self.unverified.total_m2
 
     @property
     def coverage(self) -> float | None:
@@ -75,20 +82,31 @@ class RunRecord:
         self.sources[source] = self.sources.get(source, 0) + 1
 
     def record_progress(
-        self, now: float, odometry: Odometry, maps: ObservedMaps, thresholded: np.ndarray | None, phase: str
+        self,
+        now: float,
+        odometry: Odometry,
+        maps: ObservedMaps,
+        thresholded: np.ndarray | None,
+        phase: str,
+        probabilities: np.ndarray | None = None,
     ) -> None:
         """Coverage against the plan (if known) and the path, once per decision (the path grows while exploring or
         returning). Coverage is also measured on the observed map alone, so a flight shows how much of its coverage
-        the prediction added (issue #17)."""
+        the prediction added (issue #17). The maps' own unverified area (from ``thresholded`` and the predictor's
+        ``probabilities``; :mod:`edge_explorer.predict.verification`) is measured with or without a plan: without
+        one it is what ends exploration."""
         xy = (odometry.x_m, odometry.y_m)
         if self.path and phase in ("exploring", "returning"):
             self.path_length_m += math.dist(self.path[-1], xy)
         self.path.append(xy)
         coverage = correct = None
-        if self.truth is not None:
-            with self.timings.timed("coverage"):
+        with self.timings.timed("coverage"):  # the maps' completeness: against the plan if known, and by themselves
+            fused = maps.low if thresholded is None else thresholded
+            self.unverified = unverified_area_m2(maps.low, fused, probabilities, maps.low_grid.resolution_m)
+            if self.truth is not None:
                 self.metrics = self.truth.metrics(maps.low, maps.low_grid, thresholded)
                 observed = self.metrics if thresholded is None else self.truth.metrics(maps.low, maps.low_grid, None)
+        if self.truth is not None:
             coverage, correct = self.metrics.coverage, self.metrics.correct_coverage
             self.observed_coverage = observed.coverage
             if self.path_at_goal_m is None and coverage >= self.coverage_goal:
@@ -144,4 +162,7 @@ class RunRecord:
             stages=self.timings.stats(),
             timeline=list(self.timeline),
             path_xy_m=list(self.path),
+            verified_m2=None if self.unverified is None else self.unverified.verified_m2,
+            unverified_m2=None if self.unverified is None else self.unverified.total_m2,
+            unverified=None if self.unverified is None else unverified_parts(self.unverified),
         )

@@ -15,6 +15,7 @@ import numpy as np
 
 from edge_explorer.mapping.metrics import MapMetrics, map_metrics
 from edge_explorer.mapping.projection import align_to_grid
+from edge_explorer.predict.verification import UnverifiedArea
 from edge_explorer.world.flight_space import reachable_cells
 from edge_explorer.world.grid import LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
 from edge_explorer.world.raster import PlanRaster, block_reduce_max
@@ -124,11 +125,26 @@ class RunReport:
     timeline: list[tuple[float, float | None, float | None, float, float | None]]  # (t_s, coverage, correct,
     # path_m, observed coverage)
     path_xy_m: list[tuple[float, float]]
+    # The maps' own view at the last decision (issue #56; predict/verification.py), with or without a plan: the area
+    # the sensor confirmed near the building, and the unverified area (unknown reachable + expected wrong predicted)
+    # whose falling below the threshold ends exploration without a plan ("map says verified").
+    verified_m2: float | None = None
+    unverified_m2: float | None = None
+    unverified: dict[str, float] | None = None  # its parts: unknown_reachable_m2, expected_wrong_m2, predicted_m2
 
     def to_json(self) -> dict[str, Any]:
         doc = asdict(self)
         doc["stages"] = {k: asdict(v) for k, v in self.stages.items()}
         return doc
+
+
+def unverified_parts(area: UnverifiedArea) -> dict[str, float]:
+    """The parts of an unverified area for a report, m² rounded to 0.01."""
+    return {
+        "unknown_reachable_m2": round(area.unknown_reachable_m2, 2),
+        "expected_wrong_m2": round(area.expected_wrong_m2, 2),
+        "predicted_m2": round(area.predicted_m2, 2),
+    }
 
 
 class CoverageTruth:
