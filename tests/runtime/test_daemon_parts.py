@@ -303,6 +303,21 @@ def test_without_a_coverage_the_time_limit_ends_exploration_and_the_vehicle_retu
     assert (state.phase, state.ending) == ("returning", "time limit")
 
 
+def test_the_flight_budget_keeps_the_way_home_in_reserve(clock):
+    config = replace(CONFIG, return_home=True, time_limit_s=100.0)
+    phases, state, _ = _phases(FakeLink(Pose(10.0, 1.0, 1.0, 1.5, 0.0)), config)
+    phases.climb()
+    clock.now += 5.0
+    phases.check_takeoff_done(Pose(10.0, 1.0, 1.0, config.flight_height_m, 0.0), "frontier")
+    state.home_xy = (1.0, 1.0)  # where take_off() puts it
+    # 10 m from home: 10 m × detour 2 at 0.5 m/s + 2 s hover + 10 s margin = 52 s kept for the way home
+    assert phases.home_reserve_s((11.0, 1.0)) == pytest.approx(52.0)
+    phases.check_end_of_exploration(clock.now + 47.0, None, None, (11.0, 1.0))
+    assert state.phase == "exploring"
+    phases.check_end_of_exploration(clock.now + 48.0, None, None, (11.0, 1.0))
+    assert (state.phase, state.ending) == ("returning", "time limit")
+
+
 # ---- the decision pipeline ---------------------------------------------------------------------------------------
 
 

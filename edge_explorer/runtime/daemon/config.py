@@ -25,7 +25,12 @@ class DaemonConfig:
     """How the daemon flies and when it stops. Times in seconds, distances in metres (map frame)."""
 
     coverage_goal: float = 0.95
-    time_limit_s: float = 600.0  # exploration time after take-off; the demo on building A reaches 95 % in ~5 min
+    # The flight budget after take-off (a battery's worth): exploration ends early enough that the way home fits in
+    # it — the reserve is the straight line home × home_detour_factor at cruise speed, plus the hover at home and
+    # home_reserve_margin_s. The demo on building A reaches 95 % in ~5 min.
+    time_limit_s: float = 600.0
+    home_detour_factor: float = 2.0  # paths home through doors and corridors run longer than the straight line
+    home_reserve_margin_s: float = 10.0
     return_home: bool = True
     home_hover_s: float = 2.0
     return_time_limit_s: float = 180.0

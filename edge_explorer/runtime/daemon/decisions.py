@@ -178,7 +178,9 @@ class DecisionPipeline:
             thresholded = self.predict(maps, low_cell)
             self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase, self.probabilities)
         if self.phases.phase == "exploring":
-            self.phases.check_end_of_exploration(now, self.record.coverage, self.record.unverified_m2)
+            self.phases.check_end_of_exploration(
+                now, self.record.coverage, self.record.unverified_m2, (odometry.x_m, odometry.y_m)
+            )
         self._candidate_s = 0.0
         start = time.perf_counter()
         planner = WaypointPlanner(self.table, FreeSpace.from_codes(high, high_grid), cfg.follow.safe_distance_m)

@@ -22,6 +22,7 @@ was lost while in control) comes in as method arguments."""
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 from edge_explorer.mapping.observed import ObservedMaps
@@ -197,17 +198,33 @@ class FlightPhases:
         end_s = self.feeder.end_s
         return end_s is None or now >= end_s - self.config.decision_lead_s
 
-    def check_end_of_exploration(self, now: float, coverage: float | None, unverified_m2: float | None = None) -> None:
+    def check_end_of_exploration(
+        self,
+        now: float,
+        coverage: float | None,
+        unverified_m2: float | None = None,
+        xy_m: tuple[float, float] | None = None,
+    ) -> None:
         """End exploration at the coverage goal (``coverage``: the latest, None without a plan), by the map stop rule
         when there is no plan (``unverified_m2``: the latest unverified area, below ``stop_threshold_m2``: "map says
-        verified") or at the time limit."""
+        verified") or when the time left in the flight budget is the reserve to fly home from ``xy_m``."""
         assert self._explore_start_s is not None
         if coverage is not None and coverage >= self.config.coverage_goal:
             self.finish_exploring("coverage goal")
         elif coverage is None and unverified_m2 is not None and unverified_m2 < self.config.stop_threshold_m2:
             self.finish_exploring(MAP_STOP_ENDING)
-        elif now - self._explore_start_s >= self.config.time_limit_s:
+        elif now - self._explore_start_s + self.home_reserve_s(xy_m) >= self.config.time_limit_s:
             self.finish_exploring("time limit")
+
+    def home_reserve_s(self, xy_m: tuple[float, float] | None) -> float:
+        """The time kept in the flight budget to fly home from ``xy_m``: the straight line × ``home_detour_factor``
+        at cruise speed, the hover at home and a margin (none without a return home)."""
+        cfg = self.config
+        if not cfg.return_home or xy_m is None or self.state.home_xy is None:
+            return 0.0
+        cruise_m_s = self.table.model.forward_step_m / self.table.model.step_s
+        distance_m = math.dist(xy_m, self.state.home_xy)
+        return distance_m * cfg.home_detour_factor / cruise_m_s + cfg.home_hover_s + cfg.home_reserve_margin_s
 
     def home_action(self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int) -> int | None:
         """The next action along a path home over observed free space (after action ``previous``); None (and
