@@ -118,7 +118,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--time-limit-s",
         type=_positive(float),
         metavar="S",
-        help="exploration time before flying home (default: DaemonConfig.time_limit_s, 10 min; with --plans 20 min)",
+        help="flight budget after take-off: exploration ends early enough to be home within it (default: "
+        "DaemonConfig.time_limit_s, 10 min; with --plans 20 min)",
     )
     run.add_argument("--no-return", action="store_true", help="hover where exploration ends instead of flying home")
     run.add_argument("--out", type=Path, metavar="DIR", help="output folder (default runs/run-<timestamp>/)")

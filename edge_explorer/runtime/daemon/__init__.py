@@ -57,11 +57,12 @@ every planner's, through observed free space, so it cannot choose a collision.
 **The end.** Exploration ends at ``coverage_goal`` (predicted coverage with a predictor, observed without) when a
 plan of the building is known; without one, by the map stop rule — when the maps' own unverified area (unknown space
 the vehicle could still reach or see, plus the expected wrong area among the predicted cells:
-:mod:`edge_explorer.predict.verification`) falls below ``stop_threshold_m2``, ending "map says verified"; at
-``time_limit_s``; or when the frontier planner has nothing left (after giving the targets it dropped
-``frontier_retries`` more chances while frontier cells remain); the daemon then flies home (the take-off point,
-along a path over observed free space, with the same six actions) and hovers there for ``home_hover_s``.
-:meth:`Daemon.request_stop` (SIGINT/SIGTERM) ends the loop at once with a hold.
+:mod:`edge_explorer.predict.verification`) falls below ``stop_threshold_m2``, ending "map says verified"; when what
+is left of the flight budget ``time_limit_s`` is the reserve to fly home (``FlightPhases.home_reserve_s``); or when
+the frontier planner has nothing left (after giving the targets it dropped ``frontier_retries`` more chances while
+frontier cells remain); the daemon then flies home (the take-off point, along a path over observed free space, with
+the same six actions) and hovers there for ``home_hover_s``. :meth:`Daemon.request_stop` (SIGINT/SIGTERM) ends the
+loop at once with a hold.
 
 Every stage is timed (:class:`StageTimings`, reused by the profiling report) and the run is summed up in a
 :class:`RunReport`.
