@@ -285,7 +285,14 @@ def decisions_after(report: RunReport, t_s: float) -> int:
 
 @pytest.mark.slow
 def test_explores_reaches_the_coverage_goal_and_flies_home(raster, camera, tmp_path):
-    config = replace(CONFIG, coverage_goal=0.7, time_limit_s=12.0, return_home=True, return_time_limit_s=8.0)
+    config = replace(
+        CONFIG,
+        coverage_goal=0.7,
+        time_limit_s=20.0,
+        return_home=True,
+        return_time_limit_s=8.0,
+        home_reserve_margin_s=0.0,
+    )
     flight = fly(raster, camera, tmp_path, config)
     report = flight.report
     assert report.ending == "coverage goal"
