@@ -54,6 +54,8 @@ DEFAULT_REACH_M = 4.5  # depth behind the free space up to which unseen space co
 # (1 of 80 in all: drl+pred on val-00003, a room the predictor paints solid with confidence) from 2 to 8 m² and first
 # rose at 10 m² (drl+pred 2/20, frontier+pred 1/20); 6 m² keeps two steps of margin below that and ends the
 # predictor methods 29-36 m before Nearest Frontier's own end (docs/bench/README.md, "The map stop rule").
+# Re-flown with the calibrated probabilities the shipped predictor gives since its card carries a calibration: false
+# stops stay at 0-1 of 20 per method up to 10 m² and first rise at 12 m², so 6 m² was kept.
 DEFAULT_STOP_THRESHOLD_M2 = 6.0
 
 
