@@ -31,6 +31,7 @@ import math
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from edge_explorer.mapping.projection import HeightBand, project
@@ -174,12 +175,13 @@ class GrowingMaps(VoxelMaps):
     def project(self) -> tuple[np.ndarray, GridSpec, np.ndarray, GridSpec]:
         """(0.05 m codes, their grid, 0.20 m codes, their grid) over everything seen, projected over ``band``; the
         flown footprint counts free at 0.05 m where nothing was seen."""
-        band = self.band
-        high_window, window_grid = project(self.high, band)
-        high, grid = self.seen.copy(), self.grid
-        _paste(high, grid, high_window, window_grid, keep_unknown=True)
-        high[(self.flown != 0) & (high == UNKNOWN)] = FREE
-        low, low_grid = project(self.low, band)
+        window, window_grid = project(self.high, self.band)
+        grid = self.grid
+        high = np.empty_like(self.seen)
+        row0 = int(round((window_grid.origin_xy[1] - grid.origin_xy[1]) / HIGH_RES_M))
+        col0 = int(round((window_grid.origin_xy[0] - grid.origin_xy[0]) / HIGH_RES_M))
+        _compose(self.seen, self.flown, window, row0, col0, high)
+        low, low_grid = project(self.low, self.band)
         return high, grid, low, low_grid
 
     def nbytes(self) -> int:
@@ -214,6 +216,24 @@ def footprint_bound(
     window_bytes = window * window * layers_low * factor * 4
     # A growth holds the old box beside the new one (log-odds, then the 2-D maps); a recentring, two windows.
     return 2 * (low_bytes + plane_bytes) + 2 * window_bytes
+
+
+@numba.njit(cache=True, nogil=True)
+def _compose(seen, flown, window, row0, col0, out):
+    """out ← ``seen`` with ``window`` (its cell (0, 0) at (row0, col0)) laid over it where the window knows the
+    cell, then FREE where still UNKNOWN and flown: one pass (the daemon does this at every decision)."""
+    rows, cols = seen.shape
+    w_rows, w_cols = window.shape
+    for i in range(rows):
+        wi = i - row0
+        for j in range(cols):
+            v = seen[i, j]
+            wj = j - col0
+            if 0 <= wi < w_rows and 0 <= wj < w_cols and window[wi, wj] != UNKNOWN:
+                v = window[wi, wj]
+            if v == UNKNOWN and flown[i, j] != 0:
+                v = FREE
+            out[i, j] = v
 
 
 def _paste(dst: np.ndarray, dst_grid: GridSpec, src: np.ndarray, src_grid: GridSpec, keep_unknown: bool) -> None:
