@@ -35,7 +35,7 @@ import numba
 import numpy as np
 
 from edge_explorer.mapping.projection import HeightBand, project
-from edge_explorer.mapping.voxels import FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
+from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
 from edge_explorer.world.grid import CELL_DTYPE, FREE, HIGH_RES_M, LOW_RES_M, UNKNOWN, GridSpec
 
 
@@ -157,7 +157,14 @@ class GrowingMaps(VoxelMaps):
         row, col = self.low.index_of(x_m, y_m, self.region.origin_xyz_m[2])[:2]
         lr0, lc0 = self.low.offset_cells
         f = self.factor
-        self.high.reframe((lr0 + row) * f - n // 2, (lc0 + col) * f - n // 2, n, n)
+        row0, col0 = (lr0 + row) * f - n // 2, (lc0 + col) * f - n // 2
+        if self.high.shape[:2] == (n, n):  # moved in place: no second window alive, even for a moment
+            old_row0, old_col0 = self.high.offset_cells
+            _shift(self.high.log_odds, row0 - old_row0, col0 - old_col0, UNKNOWN_LOGODDS)
+            self.high._stamp.fill(0)
+            self.high.offset_cells = (row0, col0)
+        else:
+            self.high.reframe(row0, col0, n, n)
 
     def fold(self) -> None:
         """Lay the window's projection over the persistent 2-D map (where the window knows the cell)."""
@@ -234,8 +241,8 @@ def footprint_bound(
     plane_bytes = low_cells * factor * factor * 2  # int8 codes + uint8 footprint at 0.05 m
     window = _cells(growth.window_m, LOW_RES_M) * factor
     window_bytes = window * window * layers_low * factor * 4
-    # A growth holds the old box beside the new one (log-odds, then the 2-D maps); a recentring, two windows.
-    return 2 * (low_bytes + plane_bytes) + 2 * window_bytes
+    # A growth holds the old box beside the new one (log-odds, then the 2-D maps); the window moves in place.
+    return 2 * (low_bytes + plane_bytes) + window_bytes
 
 
 class _Extent:
@@ -266,6 +273,23 @@ class _Extent:
         col0 = max(0, math.floor((self.lo[0] - margin_m - x0) / r))
         col1 = min(grid.shape[1], math.floor((self.hi[0] + margin_m - x0) / r) + 1)
         return row0, row1, col0, col1
+
+
+@numba.njit(cache=True, nogil=True)
+def _shift(a, dr, dc, fill):
+    """a[i, j] ← a[i + dr, j + dc] in place (``fill`` where that lies outside), each cell read before it is
+    overwritten."""
+    rows, cols = a.shape[0], a.shape[1]
+    row_order = range(rows) if dr >= 0 else range(rows - 1, -1, -1)
+    col_order = range(cols) if dc >= 0 else range(cols - 1, -1, -1)
+    for i in row_order:
+        si = i + dr
+        for j in col_order:
+            sj = j + dc
+            if 0 <= si < rows and 0 <= sj < cols:
+                a[i, j, :] = a[si, sj, :]
+            else:
+                a[i, j, :] = fill
 
 
 @numba.njit(cache=True, nogil=True)

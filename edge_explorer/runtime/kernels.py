@@ -74,6 +74,7 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     z_range = (band.min_z_m - LOW_RES_M, band.min_z_m + 1.2)
     maps = GrowingMaps(x_m, y_m, z_range, FusionConfig(), GrowthConfig(window_m=12.0, start_m=2.0), band)
     maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
+    maps.ensure_covers(x_m + 8.0, y_m)  # a growth and a move of the 0.05 m window (its shift kernel)
     high, high_grid, low, _ = maps.project()
     coarse = raster.coarsened(LOW_RES_M)
     truth, interior = coarse.truth_codes(), coarse.interior
