@@ -156,6 +156,17 @@ class Daemon:
         if self.state.stop_reason is not None:
             self.state.ending = self.state.stop_reason
             log.warning("stopping: %s; holding position", self.state.stop_reason)
+        maps = self.flight_maps.voxels
+        if maps is not None:
+            width_m, height_m = maps.grid.size_xy_m
+            log.info(
+                "maps grew to %.1f × %.1f m (%d growths, the 0.05 m window moved %d times; %.0f MB of arrays)",
+                width_m,
+                height_m,
+                maps.growths,
+                maps.recentrings,
+                maps.nbytes() / 1e6,
+            )
         if progress is not None:
             progress(self._progress(time.monotonic()))
         return self.record.report(
