@@ -49,15 +49,10 @@ class GrowthConfig:
     start_m: float = 16.0
     margin_m: float = 1.0
     step_max_m: float = 16.0
-    # The 2-D maps handed out (:meth:`GrowingMaps.project`) cover what was seen or flown plus this margin, not the
-    # whole box with its growth slack: the planners' cost grows with the maps' area.
-    crop_margin_m: float = 1.0
 
     def __post_init__(self) -> None:
         if not (self.window_m > 0 and self.start_m > 0 and min(self.margin_m, self.step_max_m) >= 0):
             raise ValueError("window_m and start_m must be positive, margin_m and step_max_m ≥ 0")
-        if not self.crop_margin_m >= LOW_RES_M:
-            raise ValueError("crop_margin_m must be at least one 0.20 m cell (frontiers need unknown cells around)")
 
 
 def _cells(length_m: float, resolution_m: float) -> int:
@@ -94,8 +89,6 @@ class GrowingMaps(VoxelMaps):
         self.flown = np.zeros((0, 0), dtype=np.uint8)  # 1 where the vehicle's body has been
         self.growths = 0
         self.recentrings = 0
-        self._extent = _Extent()  # what was seen, flown or stood in, in metres (the 2-D maps' crop)
-        self._extent.add(x_m, y_m)
         row, col = self.low.index_of(x_m, y_m, anchor[2])[:2]
         half = _cells(growth.start_m / 2, LOW_RES_M)
         self._reframe_low(row - half, col - half, 2 * half, 2 * half)
@@ -106,7 +99,6 @@ class GrowingMaps(VoxelMaps):
     def _before_insert(self, position_m: np.ndarray) -> None:
         x, y = float(position_m[0]), float(position_m[1])
         self.ensure_covers(x, y)
-        self._extent.add(x, y)
 
     def ensure_covers(self, x_m: float, y_m: float) -> None:
         """Grow the 0.20 m map and move the 0.05 m window so both hold everything a camera at (x, y) can see."""
@@ -170,7 +162,6 @@ class GrowingMaps(VoxelMaps):
         """Lay the window's projection over the persistent 2-D map (where the window knows the cell)."""
         codes, grid = project(self.high, self.band)
         _paste(self.seen, self.grid, codes, grid, keep_unknown=True)
-        self._extent.add_known(codes, grid)
 
     # ---- what the planners read ---------------------------------------------------------------------------------
 
@@ -187,28 +178,18 @@ class GrowingMaps(VoxelMaps):
             return
         row, col = self.grid.cell_of(x_m, y_m)
         cv2.circle(self.flown, (int(col), int(row)), radius_cells, 1, thickness=-1)
-        self._extent.add(x_m - radius_m, y_m - radius_m)
-        self._extent.add(x_m + radius_m, y_m + radius_m)
 
     def project(self) -> tuple[np.ndarray, GridSpec, np.ndarray, GridSpec]:
-        """(0.05 m codes, their grid, 0.20 m codes, their grid) over everything seen, projected over ``band``; the
-        flown footprint counts free at 0.05 m where nothing was seen. Both cover what was seen, flown or stood in
-        plus ``crop_margin_m`` (on whole 0.20 m cells, the same origin), not the box's growth slack."""
+        """(0.05 m codes, their grid, 0.20 m codes, their grid) over the whole box (same origin), projected over
+        ``band``; the flown footprint counts free at 0.05 m where nothing was seen. The grids change only when the
+        box grows (planners that keep cell indices across decisions must start afresh then)."""
         window, window_grid = project(self.high, self.band)
-        low_box, low_box_grid = project(self.low, self.band)
-        self._extent.add_known(window, window_grid)
-        self._extent.add_known(low_box, low_box_grid)
-        r0, r1, c0, c1 = self._extent.cells(low_box_grid, self.growth.crop_margin_m)
-        low = np.ascontiguousarray(low_box[r0:r1, c0:c1])
-        x0, y0 = low_box_grid.origin_xy
-        low_grid = GridSpec((x0 + c0 * LOW_RES_M, y0 + r0 * LOW_RES_M), LOW_RES_M, low.shape)
-        f = self.factor
-        grid = GridSpec(low_grid.origin_xy, HIGH_RES_M, (low.shape[0] * f, low.shape[1] * f))
-        high = np.empty(grid.shape, dtype=CELL_DTYPE)
+        grid = self.grid
+        high = np.empty_like(self.seen)
         row0 = int(round((window_grid.origin_xy[1] - grid.origin_xy[1]) / HIGH_RES_M))
         col0 = int(round((window_grid.origin_xy[0] - grid.origin_xy[0]) / HIGH_RES_M))
-        seen = self.seen[r0 * f : r1 * f, c0 * f : c1 * f]
-        _compose(seen, self.flown[r0 * f : r1 * f, c0 * f : c1 * f], window, row0, col0, high)
+        _compose(self.seen, self.flown, window, row0, col0, high)
+        low, low_grid = project(self.low, self.band)
         return high, grid, low, low_grid
 
     def nbytes(self) -> int:
@@ -243,36 +224,6 @@ def footprint_bound(
     window_bytes = window * window * layers_low * factor * 4
     # A growth holds the old box beside the new one (log-odds, then the 2-D maps); the window moves in place.
     return 2 * (low_bytes + plane_bytes) + window_bytes
-
-
-class _Extent:
-    """A growing axis-aligned box in metres: what was seen, flown or stood in."""
-
-    def __init__(self) -> None:
-        self.lo = [math.inf, math.inf]
-        self.hi = [-math.inf, -math.inf]
-
-    def add(self, x_m: float, y_m: float) -> None:
-        self.lo = [min(self.lo[0], x_m), min(self.lo[1], y_m)]
-        self.hi = [max(self.hi[0], x_m), max(self.hi[1], y_m)]
-
-    def add_known(self, codes: np.ndarray, grid: GridSpec) -> None:
-        """Add the cells of ``codes`` that are not UNKNOWN."""
-        known = codes != UNKNOWN
-        rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
-        if len(rows):
-            (x0, y0), r = grid.origin_xy, grid.resolution_m
-            self.add(x0 + cols[0] * r, y0 + rows[0] * r)
-            self.add(x0 + (cols[-1] + 1) * r, y0 + (rows[-1] + 1) * r)
-
-    def cells(self, grid: GridSpec, margin_m: float) -> tuple[int, int, int, int]:
-        """(row0, row1, col0, col1): the cells of ``grid`` within ``margin_m`` of the box, clipped to the grid."""
-        (x0, y0), r = grid.origin_xy, grid.resolution_m
-        row0 = max(0, math.floor((self.lo[1] - margin_m - y0) / r))
-        row1 = min(grid.shape[0], math.floor((self.hi[1] + margin_m - y0) / r) + 1)
-        col0 = max(0, math.floor((self.lo[0] - margin_m - x0) / r))
-        col1 = min(grid.shape[1], math.floor((self.hi[0] + margin_m - x0) / r) + 1)
-        return row0, row1, col0, col1
 
 
 @numba.njit(cache=True, nogil=True)

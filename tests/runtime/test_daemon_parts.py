@@ -377,7 +377,7 @@ def test_decisions_explore_until_the_time_limit_then_hold(clock):
     pipeline.decide(clock.now, time.thread_time())
     assert phases.phase == "exploring" and (record.decisions, record.sources) == (1, {"frontier": 1})
     assert pipeline.view is not None and pipeline.view.thresholded is None
-    assert pipeline.view.high.shape == (44, 44)  # nothing seen: the take-off point ± the maps' 1 m crop margin
+    assert pipeline.view.high.shape == (320, 320)  # the first box: 16 m around the take-off point
     assert {"project", "planner", "waypoint_trajectory", "decision", "decision_cpu"} <= set(record.timings.stats())
     clock.now += CONFIG.time_limit_s
     pipeline.decide(clock.now, time.thread_time())
