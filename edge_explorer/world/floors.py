@@ -31,7 +31,7 @@ one deep row or two rows back to back; a stairwell core every 25–50 m of corri
 generator's); walls 0.10–0.15 m inside, 0.15–0.25 m outside; the spine 40–200 m long, drawn uniformly.
 
 Measured with a one-off script (not in the repository) on the 32 test floors rasterized at 0.10 m (walls and tall
-furniture as obstacles) and on the 7 whole KTH floors of ``../shared/data/realplans_whole`` (validation only, never
+furniture as obstacles) and on 7 whole public KTH office floors, 206–271 m long (validation only, never
 tuned to geometry; free = light pixels): ``width`` is the diameter of the largest free disc that covers a point (a
 size spectrum of the free space that needs no room segmentation: the opening of the free space by discs of radius
 0.75, 1.5, 2.5 and 4 m, via a distance transform), ``wall face`` the length of free/blocked cell edges per m² of
