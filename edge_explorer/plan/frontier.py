@@ -190,6 +190,24 @@ class GoalPlanner:
             self._dropped = np.zeros(maps.low.shape, dtype=bool)
         return self._dropped
 
+    def memory(self) -> dict[str, np.ndarray]:
+        """What the planner remembers on the 0.20 m grid across steps, as bool masks of the map's shape (the dropped
+        targets); a planner that flies a moving window of the maps (:mod:`edge_explorer.plan.window`) carries them
+        over when the window moves."""
+        return {} if self._dropped is None else {"dropped": self._dropped}
+
+    def remember(self, memory: dict[str, np.ndarray]) -> None:
+        """Take ``memory`` (:meth:`memory`'s masks on the grid of the next maps) and forget the goal, whose target
+        cells are indices on the old grid."""
+        self._dropped = memory.get("dropped")
+        self._goal = None
+        self._last_targets = None
+
+    def targets(self, low: np.ndarray, fused_low: np.ndarray | None) -> np.ndarray:
+        """bool, ``low``'s shape: the cells this planner explores towards on the observed 0.20 m map ``low`` (and
+        the fused one): the frontier. The hierarchy's global layer looks for them beyond its window."""
+        return frontier_mask(low)
+
     def act(
         self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
     ) -> int | None:

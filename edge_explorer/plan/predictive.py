@@ -233,6 +233,23 @@ class PredictiveFrontier(GoalPlanner):
         super().reset()
         self._committed = None
 
+    def memory(self) -> dict[str, np.ndarray]:
+        """The dropped targets and the committed ones (:meth:`status`)."""
+        memory = super().memory()
+        if self._committed is not None:
+            memory["committed"] = self._committed
+        return memory
+
+    def remember(self, memory: dict[str, np.ndarray]) -> None:
+        super().remember(memory)
+        self._committed = memory.get("committed")
+
+    def targets(self, low: np.ndarray, fused_low: np.ndarray | None) -> np.ndarray:
+        """The fused frontier (the observed one where the fused map is not given)."""
+        if fused_low is None:
+            return frontier_mask(low)
+        return fused_frontier_mask(low, fused_low, self.predictive.open_prediction)
+
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """The fused frontier plus the committed targets still on the observed frontier (less the dropped
         targets), or the observed frontier when that is empty."""

@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # the registry itself stays light: command lines list its nam
     from edge_explorer.plan.follow import FollowConfig, Pose
     from edge_explorer.plan.frontier import GoalPlanner, PlannerConfig
     from edge_explorer.plan.goal_policy import GoalPolicy
+    from edge_explorer.plan.window import WindowConfig, WindowedPlanner
     from edge_explorer.vehicle.dynamics import ActionTable
 
 
@@ -100,13 +101,17 @@ def build_planner(
     table: ActionTable | None = None,
     policy: GoalPolicy | None = None,
     follow: FollowConfig | None = None,
-) -> GoalPlanner:
+    window: WindowConfig | None = None,
+) -> WindowedPlanner:
     """The planner registered as ``name`` with default settings, or the follower settings ``follow`` (the
-    daemon's); ``policy`` is the learned goal policy for the planners that need one (``drl``)."""
+    daemon's), inside the planning hierarchy (:mod:`edge_explorer.plan.window`; ``window``: its window and route
+    settings), which leaves it alone on maps that fit the window; ``policy`` is the learned goal policy for the
+    planners that need one (``drl``)."""
     from edge_explorer.plan.frontier import PlannerConfig
+    from edge_explorer.plan.window import WindowConfig, WindowedPlanner
 
     entry = PLANNERS.get(name)
     if entry is None:
         raise EdgeExplorerError(f"unknown planner {name!r}; known: {', '.join(PLANNERS)}")
     config = PlannerConfig() if follow is None else PlannerConfig(follow=follow)
-    return entry.build(config, table, policy)
+    return WindowedPlanner(entry.build(config, table, policy), window or WindowConfig())

@@ -9,6 +9,7 @@ from edge_explorer.bench import explore
 from edge_explorer.bench.summary import failures, markdown_failures
 from edge_explorer.cli import main
 from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.plan.frontier import NearestFrontier
 from edge_explorer.plan.registry import PlannerEntry
 from edge_explorer.sim import runs
 from edge_explorer.world.plan import save_plan_json
@@ -182,14 +183,11 @@ def test_runs_threshold_with_the_predictor_s_calibrated_thresholds(rooms, tmp_pa
     assert used == [ThresholdConfig(t_f_max=0.1, t_o=0.9), ThresholdConfig()]
 
 
-class _GivesUp:
+class _GivesUp(NearestFrontier):
     """A planner that finds nothing to explore from the first step."""
 
-    def __init__(self, config=None, table=None, policy=None):
-        pass
-
-    def reset(self):
-        pass
+    def __init__(self, config, table, policy=None):
+        super().__init__(config, table)
 
     def act(self, maps, pose, previous_action, fused_low=None):
         return None

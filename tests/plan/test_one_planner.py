@@ -14,6 +14,7 @@ from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS as G
 from edge_explorer.plan.goal_grid import GoalOptions
 from edge_explorer.plan.goal_policy import GoalPolicyPlanner, weighted_scores, with_view_gain
 from edge_explorer.plan.predictive import PredictiveConfig, PredictiveFrontier
+from edge_explorer.plan.window import WindowedPlanner
 from edge_explorer.runtime.daemon import Daemon, DaemonConfig
 from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
 from edge_explorer.sim.env import EnvConfig
@@ -55,7 +56,8 @@ def test_the_daemon_explores_with_the_benchmark_s_goal_policy_planner(rooms):
     link = MavlinkLink(LinkConfig(connect="udpout:127.0.0.1:9"))
     runtime = type("Runtime", (), {"scores": staticmethod(policy)})()
     daemon = Daemon(DaemonConfig(), link, source=None, policy=runtime)  # type: ignore[arg-type]
-    assert type(daemon.frontier) is GoalPolicyPlanner and daemon.planner_name == "drl"
-    assert isinstance(daemon.frontier, PredictiveFrontier)  # the expert's view and loop, the policy's goals
+    assert isinstance(daemon.frontier, WindowedPlanner)  # the hierarchy the benchmark flies too …
+    assert type(daemon.frontier.local) is GoalPolicyPlanner and daemon.planner_name == "drl"  # … around the policy
+    assert isinstance(daemon.frontier.local, PredictiveFrontier)  # the expert's view and loop, the policy's goals
     without = Daemon(DaemonConfig(exploration_planner="predfrontier"), link, source=None)  # type: ignore[arg-type]
-    assert type(without.frontier) is PredictiveFrontier and without.planner_name == "predfrontier"
+    assert type(without.frontier.local) is PredictiveFrontier and without.planner_name == "predfrontier"

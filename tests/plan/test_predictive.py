@@ -113,7 +113,7 @@ def test_the_expert_explores_the_two_rooms_without_collision():
     env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=400))
     _, info = env.reset(seed=3, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
     planner = build_planner("predfrontier", env.table)
-    assert isinstance(planner, PredictiveFrontier)
+    assert isinstance(planner.local, PredictiveFrontier)
     previous = 0
     for _ in range(400):
         action = planner.act(env.maps, env.pose, previous, env.thresholded_low)

@@ -1,0 +1,323 @@
+"""A planning hierarchy whose cost per step does not grow with the building: a local planner on a window of the
+maps that follows the vehicle, and a global route beyond it (issue #55).
+
+Every planner of the registry (:mod:`edge_explorer.plan.registry`) flies inside :class:`WindowedPlanner`. On maps
+that fit in the window (``size_m`` along both axes: the paper's 21 × 11 m buildings and every generated plan) it
+hands the maps to its planner unchanged, so the planner flies exactly as it did without it. On larger maps:
+
+* **Local layer.** The planner sees a ``size_m`` square crop of the observed maps (and of the fused map) around the
+  vehicle, a copy on its own grid, so building its free space, graph and goals costs the same on a 270 m floor as
+  on a 30 m one. The window stays put until the vehicle is ``recentre_m`` from where the window would centre it; it
+  then moves, and the planner's memory on the grid (dropped and committed targets, :meth:`GoalPlanner.memory`) is
+  kept on the whole map and handed back cropped to the new window. The planner replans after a move.
+* **Global layer.** When the planner has nothing left in its window, the route layer (:mod:`edge_explorer.plan.
+  route`) finds the nearest target the planner would explore (:meth:`GoalPlanner.targets`: the observed frontier,
+  or the fused one for the predictive planners) outside the window along the observed 0.20 m map. The vehicle flies
+  towards it through the window (:class:`Transit`: the window's fine graph and the shared follower, to the last
+  route point inside the window), and each time the window moves the local planner looks first: the route ends as
+  soon as there is something to explore in the window. A route whose end is reached without the local planner
+  taking its target, or that the fine graph cannot follow three times in a row, drops that target for the flight.
+
+The flight ends when neither layer has a target left.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.plan.follow import Pose
+from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, nearest_frontier_goal
+from edge_explorer.plan.route import Route, RouteConfig, nearest_route, via_point
+from edge_explorer.vehicle.dynamics import ActionTable
+from edge_explorer.world.grid import GridSpec
+
+_TRANSIT_TRIES = 3  # routes the fine graph could not follow in a row before their target is dropped
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """The local window and the global route of :class:`WindowedPlanner`."""
+
+    size_m: float = 24.0  # side of the square of the maps the local planner sees
+    recentre_m: float = 4.0  # the window moves when the vehicle is this far from where it would centre it
+    transit_margin_m: float = 2.0  # a route is followed to its last point this far inside the window's edge
+    route: RouteConfig = RouteConfig()
+
+    def __post_init__(self) -> None:
+        if self.size_m <= 0 or not 0 < self.recentre_m < self.size_m / 2:
+            raise ValueError("size_m must be positive and recentre_m in (0, size_m / 2)")
+        if not 0 <= self.transit_margin_m < self.size_m / 2 - self.recentre_m:
+            raise ValueError("transit_margin_m must be in [0, size_m / 2 − recentre_m)")
+
+
+@dataclass(frozen=True)
+class Window:
+    """A crop of the 0.20 m map: its first cell and its shape, in cells of the whole map."""
+
+    row0: int
+    col0: int
+    shape: tuple[int, int]
+
+    def slices(self, factor: int = 1) -> tuple[slice, slice]:
+        """The crop's rows and columns on a map ``factor``× finer than the 0.20 m one."""
+        return (
+            slice(self.row0 * factor, (self.row0 + self.shape[0]) * factor),
+            slice(self.col0 * factor, (self.col0 + self.shape[1]) * factor),
+        )
+
+    def grid(self, whole: GridSpec) -> GridSpec:
+        """The crop's own grid: ``whole``'s resolution, origin at the crop's first cell."""
+        x0, y0 = whole.origin_xy
+        r = whole.resolution_m
+        return GridSpec((x0 + self.col0 * r, y0 + self.row0 * r), r, self.shape)
+
+
+def place_window(low_grid: GridSpec, pose_xy_m: tuple[float, float], size_m: float) -> Window:
+    """The window of side ``size_m`` (at most the map) centred on the vehicle, shifted to lie on the map."""
+    cells = max(int(round(size_m / low_grid.resolution_m)), 1)
+    rows, cols = min(cells, low_grid.shape[0]), min(cells, low_grid.shape[1])
+    row, col = (int(v) for v in low_grid.cell_of(*pose_xy_m))
+    row0 = int(np.clip(row - rows // 2, 0, low_grid.shape[0] - rows))
+    col0 = int(np.clip(col - cols // 2, 0, low_grid.shape[1] - cols))
+    return Window(row0, col0, (rows, cols))
+
+
+def crop_maps(maps: ObservedMaps, window: Window) -> ObservedMaps:
+    """A copy of ``maps`` within ``window`` (0.20 m cells), on the crop's own grids."""
+    high = np.ascontiguousarray(maps.high[window.slices(maps.factor)])
+    low = np.ascontiguousarray(maps.low[window.slices()])
+    low_grid = window.grid(maps.low_grid)
+    high_grid = GridSpec(low_grid.origin_xy, maps.high_grid.resolution_m, high.shape)
+    return ObservedMaps(high_grid, low_grid, high, low, maps.fusion)
+
+
+def moved_mask(mask: np.ndarray, old: GridSpec, new: GridSpec) -> np.ndarray:
+    """``mask`` (bool on ``old``) on ``new``, a grid of the same resolution whose cells line up with ``old``'s:
+    the overlap is copied, the rest is False."""
+    out = np.zeros(new.shape, dtype=bool)
+    dr = int(round((old.origin_xy[1] - new.origin_xy[1]) / new.resolution_m))
+    dc = int(round((old.origin_xy[0] - new.origin_xy[0]) / new.resolution_m))
+    r0, c0 = max(dr, 0), max(dc, 0)
+    r1, c1 = min(dr + mask.shape[0], new.shape[0]), min(dc + mask.shape[1], new.shape[1])
+    if r0 < r1 and c0 < c1:
+        out[r0:r1, c0:c1] = mask[r0 - dr : r1 - dr, c0 - dc : c1 - dc]
+    return out
+
+
+class Transit(GoalPlanner):
+    """Flies the vehicle to a point of a global route inside the window (:attr:`via_xy_m`) along the window's fine
+    graph with the shared follower; answers ``None`` (no spin) when it cannot get there or has arrived."""
+
+    def __init__(self, config: PlannerConfig, table: ActionTable | None) -> None:
+        super().__init__(config, table)
+        self.via_xy_m: np.ndarray | None = None
+        self.arrived = False
+
+    def reset(self) -> None:
+        super().reset()
+        self.via_xy_m, self.arrived = None, False
+
+    def lead_to(self, via_xy_m: np.ndarray) -> None:
+        """Fly to ``via_xy_m`` from now on (a new goal at the next step)."""
+        self.via_xy_m, self.arrived = np.asarray(via_xy_m, dtype=float), False
+        self.remember({})
+
+    def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
+        target = np.zeros(maps.low.shape, dtype=bool)
+        if self.via_xy_m is not None and not self.arrived:
+            row, col = maps.low_grid.cell_of(*self.via_xy_m)
+            if maps.low_grid.contains(row, col):
+                target[int(row), int(col)] = True
+        return View(maps, pose, target, self.config)
+
+    def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        if not view.frontier.any():
+            return None
+        return nearest_frontier_goal(view, pose, view.frontier, 2.0 * self.config.goal_radius_m)
+
+    def status(self, goal: Goal, view: View, pose: Pose) -> str:
+        if not view.traversable.contains_path(goal.path_xy_m):
+            return "replan"
+        return super().status(goal, view, pose)
+
+    def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
+        self.arrived = True  # reached (or stuck on the way): the window decides what comes next
+        return None
+
+    def _spin(self, view: View, pose: Pose, previous_action: int) -> int | None:
+        return None
+
+
+class WindowedPlanner:
+    """The planning hierarchy (module docstring) around one registry planner (:attr:`local`)."""
+
+    def __init__(self, local: GoalPlanner, config: WindowConfig = WindowConfig()) -> None:
+        self.local = local
+        self.config = config
+        self.transit = Transit(local.config, local.table)
+        self.reset()
+
+    def reset(self) -> None:
+        self.local.reset()
+        self.transit.reset()
+        self.window: Window | None = None
+        self._grid: GridSpec | None = None  # the whole 0.20 m map's grid the memory below lies on
+        self._memory: dict[str, np.ndarray] = {}  # the local planner's memory on the whole map
+        self._dropped: np.ndarray | None = None  # targets the global layer gave up on (bool, whole map)
+        self.route: Route | None = None
+        self._route_ends = False  # whether the transit's point is the route's end
+        self._failed_routes = 0
+        self.routes = 0  # global decisions this flight
+
+    def __getattr__(self, name: str) -> object:
+        # what the local planner shows (fused, replans, last_action, predictive, …) reads through the hierarchy
+        if name == "local":
+            raise AttributeError(name)
+        return getattr(self.local, name)
+
+    def fits(self, maps: ObservedMaps) -> bool:
+        """Whether the maps fit in the window, so the local planner sees them whole."""
+        width_m, height_m = maps.low_grid.size_xy_m
+        return max(width_m, height_m) <= self.config.size_m + 1e-9
+
+    def act(
+        self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
+    ) -> int | None:
+        if self.fits(maps) and self.window is None:
+            return self.local.act(maps, pose, previous_action, fused_low)
+        moved = self._follow(maps, pose)
+        if self.route is None or moved:
+            action = self._local_act(maps, pose, previous_action, fused_low, moved)
+            if action is not None:
+                self.route, self._failed_routes = None, 0
+                return action
+            if not self._new_route(maps, pose, fused_low):
+                return None
+        for _ in range(_TRANSIT_TRIES):
+            assert self.window is not None
+            crop = crop_maps(maps, self.window)
+            fused_crop = None if fused_low is None else np.ascontiguousarray(fused_low[self.window.slices()])
+            action = self.transit.act(crop, pose, previous_action, fused_crop)
+            if action is not None:
+                return action
+            if self._follow(maps, pose, force=True):  # arrived off-centre: the window centres, the local planner looks
+                action = self._local_act(maps, pose, previous_action, fused_low, True)
+                if action is not None:
+                    self.route, self._failed_routes = None, 0
+                    return action
+            if not self._route_failed(maps, pose, fused_low):
+                return None
+        return None
+
+    def _local_act(
+        self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None, centred: bool
+    ) -> int | None:
+        """The local planner's action on the window; when it has nothing left and the window is not ``centred`` on
+        the vehicle, the window centres and it looks again (what it missed may lie just beyond the old window)."""
+        for _ in range(2):
+            assert self.window is not None
+            crop = crop_maps(maps, self.window)
+            fused_crop = None if fused_low is None else np.ascontiguousarray(fused_low[self.window.slices()])
+            action = self.local.act(crop, pose, previous_action, fused_crop)
+            if action is not None or centred or not self._follow(maps, pose, force=True):
+                return action
+            centred = True
+        return None
+
+    def _follow(self, maps: ObservedMaps, pose: Pose, force: bool = False) -> bool:
+        """Keep the window on the vehicle (module docstring; ``force``: centre it now); whether it moved. The memory
+        moves with it."""
+        grid = maps.low_grid
+        if self._grid is None:  # the maps outgrew the window: what the planner remembered of them whole carries on
+            self._memory = {k: v.copy() for k, v in self.local.memory().items() if v.shape == grid.shape}
+            self._grid = grid
+        elif self._grid != grid:  # maps that grew: the whole-map memory follows the new grid, the route ends
+            self._park()
+            self._memory = {k: moved_mask(v, self._grid, grid) for k, v in self._memory.items()}
+            if self._dropped is not None:
+                self._dropped = moved_mask(self._dropped, self._grid, grid)
+            self._grid, self.window, self.route = grid, None, None
+        if self._dropped is None:
+            self._dropped = np.zeros(grid.shape, dtype=bool)
+        wanted = place_window(grid, pose[:2], self.config.size_m)
+        if self.window is not None:
+            shift = max(abs(wanted.row0 - self.window.row0), abs(wanted.col0 - self.window.col0))
+            if wanted == self.window or (not force and shift * grid.resolution_m < self.config.recentre_m):
+                return False
+            self._park()
+        self.window = wanted
+        self.local.remember({k: np.ascontiguousarray(v[wanted.slices()]) for k, v in self._memory.items()})
+        self.transit.remember({})
+        if self.route is not None:
+            self._lead(self.route)
+        return True
+
+    def _park(self) -> None:
+        """Write the local planner's memory (on the current window) into the whole-map memory."""
+        assert self._grid is not None
+        if self.window is None:
+            return
+        for key, mask in self.local.memory().items():
+            if mask.shape != self.window.shape:
+                continue  # made on maps that fit whole, before the hierarchy took over
+            whole = self._memory.setdefault(key, np.zeros(self._grid.shape, dtype=bool))
+            whole[self.window.slices()] = mask
+
+    def _inner(self) -> tuple[slice, slice]:
+        """The window's rows and columns on the whole map less the transit margin on each side that does not lie
+        on the map's border (nothing lies beyond the border to be led to)."""
+        assert self.window is not None and self._grid is not None
+        m = int(math.ceil(self.config.transit_margin_m / self._grid.resolution_m))
+        (rows, cols), (n_rows, n_cols) = self.window.slices(), self._grid.shape
+        return (
+            slice(rows.start + (m if rows.start > 0 else 0), rows.stop - (m if rows.stop < n_rows else 0)),
+            slice(cols.start + (m if cols.start > 0 else 0), cols.stop - (m if cols.stop < n_cols else 0)),
+        )
+
+    def _inside(self) -> np.ndarray:
+        """bool on the whole map: the window's inner part (:meth:`_inner`), the targets the local planner had in
+        view."""
+        assert self._grid is not None
+        inside = np.zeros(self._grid.shape, dtype=bool)
+        inside[self._inner()] = True
+        return inside
+
+    def _new_route(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None) -> bool:
+        """Route to the nearest target outside the window; whether there is one."""
+        self._park()
+        assert self._dropped is not None
+        dropped = self._dropped | self._memory.get("dropped", np.zeros_like(self._dropped))
+        targets = self.local.targets(maps.low, fused_low) & ~dropped & ~self._inside()
+        self.routes += 1
+        self.route = nearest_route(maps.low, maps.low_grid, targets, pose[:2], self.config.route)
+        if self.route is None:
+            return False
+        self._lead(self.route)
+        return True
+
+    def _lead(self, route: Route) -> None:
+        """Point the transit at the last point of ``route`` inside the window (less the margin)."""
+        assert self._grid is not None
+        rows, cols = self._inner()
+        (x0, y0), r = self._grid.origin_xy, self._grid.resolution_m
+        box = (x0 + cols.start * r, y0 + rows.start * r, x0 + cols.stop * r, y0 + rows.stop * r)
+        via, self._route_ends = via_point(route.path_xy_m, box)
+        self.transit.lead_to(via)
+
+    def _route_failed(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None) -> bool:
+        """The transit reached its point or could not: drop the route's target when that was the route's end (the
+        local planner did not take it) or after :data:`_TRANSIT_TRIES` failures; then route anew. Whether a new
+        route exists."""
+        assert self.route is not None and self._dropped is not None
+        self._failed_routes += 1
+        if self._route_ends or self._failed_routes >= _TRANSIT_TRIES:
+            targets = np.zeros(self._dropped.shape, dtype=np.uint8)
+            targets.flat[self.route.target_cells] = 1
+            self._dropped |= cv2.dilate(targets, np.ones((5, 5), np.uint8)).astype(bool)
+            self._failed_routes = 0
+        return self._new_route(maps, pose, fused_low)

@@ -1,0 +1,159 @@
+"""The planning hierarchy: a local planner on a window that follows the vehicle, a global route beyond it
+(edge_explorer.plan.window, edge_explorer.plan.route)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from edge_explorer.mapping.observed import ObservedMaps, coarsen_codes
+from edge_explorer.plan.frontier import NearestFrontier
+from edge_explorer.plan.registry import build_planner
+from edge_explorer.plan.route import RouteConfig, nearest_route, via_point
+from edge_explorer.plan.window import (
+    Window,
+    WindowConfig,
+    WindowedPlanner,
+    crop_maps,
+    moved_mask,
+    place_window,
+)
+from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.world.grid import FREE, LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
+from edge_explorer.world.plan import FloorPlan, Rect
+from edge_explorer.world.raster import rasterize
+from tests.conftest import two_room_plan
+
+
+def corridor_plan(length_m: float, width_m: float = 3.0) -> FloorPlan:
+    """A straight corridor along x with 0.1 m walls."""
+    walls = (
+        Rect(0.0, 0.0, length_m, 0.1),
+        Rect(0.0, width_m - 0.1, length_m, width_m),
+        Rect(0.0, 0.0, 0.1, width_m),
+        Rect(length_m - 0.1, 0.0, length_m, width_m),
+    )
+    outline = ((0.0, 0.0), (length_m, 0.0), (length_m, width_m), (0.0, width_m))
+    return FloorPlan(f"corridor-{length_m:.0f}m", outline, walls, (), ())
+
+
+def observed_up_to(raster, x_m: float) -> ObservedMaps:
+    """The plan's truth observed up to ``x_m``, UNKNOWN beyond."""
+    codes = raster.truth_codes()
+    codes[:, raster.grid.cell_of(x_m, 0.0)[1] :] = UNKNOWN
+    factor = resolution_factor(raster.grid.resolution_m, LOW_RES_M)
+    return ObservedMaps(raster.grid, raster.grid.coarsened(factor), codes, coarsen_codes(codes, factor))
+
+
+def test_the_window_centres_on_the_vehicle_and_stays_on_the_map():
+    grid = GridSpec((0.0, 0.0), 0.2, (50, 1000))  # 200 m × 10 m
+    middle = place_window(grid, (100.0, 5.0), 24.0)
+    assert middle.shape == (50, 120) and middle.row0 == 0 and middle.col0 == 500 - 60
+    west = place_window(grid, (1.0, 5.0), 24.0)
+    assert west.col0 == 0
+    east = place_window(grid, (199.9, 5.0), 24.0)
+    assert east.col0 + east.shape[1] == 1000
+
+
+def test_a_crop_lies_where_it_was_cut_from(rooms_maps):
+    window = Window(3, 5, (6, 8))
+    crop = crop_maps(rooms_maps, window)
+    assert crop.low.shape == (6, 8) and crop.high.shape == (24, 32)
+    x, y = crop.low_grid.center_of(2, 3)
+    assert tuple(int(v) for v in rooms_maps.low_grid.cell_of(x, y)) == (5, 8)
+    np.testing.assert_array_equal(crop.high, rooms_maps.high[12:36, 20:52])
+    np.testing.assert_array_equal(crop.low, coarsen_codes(crop.high, 4))
+
+
+def test_memory_moves_with_the_grid():
+    old = GridSpec((2.0, 1.0), 0.2, (4, 5))
+    new = GridSpec((1.6, 0.8), 0.2, (6, 6))  # its origin two columns and one row before old's
+    mask = np.zeros(old.shape, dtype=bool)
+    mask[0, 0] = mask[3, 4] = True
+    moved = moved_mask(mask, old, new)
+    x, y = old.center_of(0, 0)
+    row, col = (int(v) for v in new.cell_of(x, y))
+    assert moved[row, col]  # the cell that stays on the new grid keeps its place in metres
+    assert (row, col) == (1, 2) and moved.sum() == 1  # old (3, 4) would be new column 6: off the grid
+
+
+def test_a_route_leads_to_the_nearest_target_and_its_window_point():
+    low = np.full((10, 400), FREE, dtype=np.int8)  # 80 m × 2 m of free space
+    grid = GridSpec((0.0, 0.0), 0.2, low.shape)
+    targets = np.zeros(low.shape, dtype=bool)
+    targets[5, 390] = targets[5, 50] = True  # 78 m and 10 m east of the vehicle
+    route = nearest_route(low, grid, targets, (0.5, 1.0), RouteConfig(min_clearance_m=0.0))
+    assert route is not None
+    assert abs(route.path_xy_m[-1, 0] - 10.1) < 0.7
+    assert np.ravel_multi_index((5, 50), low.shape) in route.target_cells
+    assert 8.5 < route.length_m < 10.0  # it ends goal_radius_m short of the target
+    via, is_end = via_point(route.path_xy_m, (0.0, 0.0, 6.0, 2.0))
+    assert not is_end and via[0] <= 6.0 and via[0] > 5.5
+    assert nearest_route(low, grid, np.zeros_like(targets), (0.5, 1.0), RouteConfig()) is None
+
+
+def test_maps_that_fit_the_window_fly_the_planner_unchanged(rooms):
+    actions = []
+    for windowed in (False, True):
+        env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=60))
+        _, info = env.reset(seed=3, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
+        planner = NearestFrontier(table=env.table)
+        flown = WindowedPlanner(planner) if windowed else planner
+        flown.reset()
+        previous, sequence = 0, []
+        for _ in range(60):
+            action = flown.act(env.maps, env.pose, previous)
+            if action is None:
+                break
+            env.step(action)
+            sequence.append(action)
+            previous = action
+        actions.append(sequence)
+    assert actions[0] == actions[1] and len(actions[0]) > 20
+
+
+def test_on_a_200_m_corridor_the_local_planner_sees_only_its_window_and_a_route_leads_on():
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    maps = observed_up_to(raster, 190.0)  # everything but the far end is known: nothing left near the vehicle
+    planner = build_planner("frontier")
+    planner.reset()
+    seen: list[tuple[int, int]] = []
+    local_act = planner.local.act
+    planner.local.act = lambda m, *a: seen.append(m.low.shape) or local_act(m, *a)  # type: ignore[method-assign]
+    pose = (2.0, 1.5, 0.0)
+    actions = [planner.act(maps, pose, 0) for _ in range(14)]  # the local planner turns a full circle first
+    assert all(a is not None for a in actions)
+    assert seen and max(max(s) for s in seen) * LOW_RES_M <= WindowConfig().size_m + 1e-9
+    assert planner.route is not None and planner.route.path_xy_m[-1, 0] > 188.0  # on to the unknown far end
+    assert planner.routes >= 1
+
+
+@pytest.mark.slow
+def test_the_hierarchy_explores_a_corridor_longer_than_its_window():
+    raster = rasterize(corridor_plan(60.0), 0.05)
+    env = ExplorationEnv([raster], EnvConfig(coverage_goal=1.0, max_steps=700))
+    _, info = env.reset(seed=1, options={"start_pose": (40.0, 1.5, math.pi)})
+    planner = build_planner("frontier", env.table)
+    planner.reset()
+    previous, collisions = 0, 0
+    for _ in range(700):
+        action = planner.act(env.maps, env.pose, previous)
+        if action is None or info["coverage"] >= 0.95:
+            break
+        _, _, _, _, info = env.step(action)
+        collisions += int(info["collided"])
+        previous = 0 if info["collided"] else action
+    assert info["coverage"] >= 0.95 and collisions == 0
+    assert planner.routes >= 1  # the far end was reached by the global layer, beyond the first window
+
+
+@pytest.fixture(scope="module")
+def rooms():
+    return rasterize(two_room_plan(), 0.05)
+
+
+@pytest.fixture(scope="module")
+def rooms_maps(rooms):
+    codes = rooms.truth_codes()
+    factor = resolution_factor(rooms.grid.resolution_m, LOW_RES_M)
+    return ObservedMaps(rooms.grid, rooms.grid.coarsened(factor), codes, coarsen_codes(codes, factor))
