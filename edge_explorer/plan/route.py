@@ -90,11 +90,10 @@ def nearest_route(
     return Route(path, np.ravel_multi_index((rows[close], cols[close]), targets.shape))
 
 
-def via_point(path_xy_m: np.ndarray, inside: tuple[float, float, float, float]) -> tuple[np.ndarray, bool]:
-    """The last point of ``path_xy_m`` before it first leaves the box ``inside`` (x0, y0, x1, y1 in metres), and
-    whether that is the path's end. The vehicle (the path's first point) is inside."""
+def via_index(path_xy_m: np.ndarray, inside: tuple[float, float, float, float]) -> int:
+    """The index of the last point of ``path_xy_m`` before it first leaves the box ``inside`` (x0, y0, x1, y1 in
+    metres); the last index when it never leaves. The vehicle (the path's first point) is inside."""
     x0, y0, x1, y1 = inside
     x, y = path_xy_m[:, 0], path_xy_m[:, 1]
     out = np.flatnonzero((x < x0) | (x > x1) | (y < y0) | (y > y1))
-    last = len(path_xy_m) - 1 if len(out) == 0 else max(int(out[0]) - 1, 0)
-    return path_xy_m[last], last == len(path_xy_m) - 1
+    return len(path_xy_m) - 1 if len(out) == 0 else max(int(out[0]) - 1, 0)

@@ -14,9 +14,12 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
   route`) finds the nearest target the planner would explore (:meth:`GoalPlanner.targets`: the observed frontier,
   or the fused one for the predictive planners) outside the window along the observed 0.20 m map. The vehicle flies
   towards it through the window (:class:`Transit`: the window's fine graph and the shared follower, to the last
-  route point inside the window), and each time the window moves the local planner looks first: the route ends as
-  soon as there is something to explore in the window. A route whose end is reached without the local planner
-  taking its target, or that the fine graph cannot follow three times in a row, drops that target for the flight.
+  route point before the route leaves the window), and each time the window moves the local planner looks first:
+  the route ends as soon as there is something to explore in the window. The transit's point only ever moves on
+  along the route (a window that moved back and forth would otherwise send the vehicle back and forth with it). A
+  target is dropped for the flight when its route's end is reached without the local planner taking it, when the
+  fine graph cannot follow its route three times in a row, or when it was routed to four times (each progress
+  rule is bounded, so the flight always ends).
 
 The flight ends when neither layer has a target left.
 """
@@ -32,11 +35,13 @@ import numpy as np
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, nearest_frontier_goal
-from edge_explorer.plan.route import Route, RouteConfig, nearest_route, via_point
+from edge_explorer.plan.route import Route, RouteConfig, nearest_route, via_index
 from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.grid import GridSpec
 
 _TRANSIT_TRIES = 3  # routes the fine graph could not follow in a row before their target is dropped
+_ROUTES_PER_TARGET = 4  # routes to the same target cells before they are dropped (the local planner took over, the
+# window moved, the global layer routed there again: a loop that would never end)
 
 
 @dataclass(frozen=True)
@@ -97,9 +102,9 @@ def crop_maps(maps: ObservedMaps, window: Window) -> ObservedMaps:
 
 
 def moved_mask(mask: np.ndarray, old: GridSpec, new: GridSpec) -> np.ndarray:
-    """``mask`` (bool on ``old``) on ``new``, a grid of the same resolution whose cells line up with ``old``'s:
-    the overlap is copied, the rest is False."""
-    out = np.zeros(new.shape, dtype=bool)
+    """``mask`` (on ``old``) on ``new``, a grid of the same resolution whose cells line up with ``old``'s: the
+    overlap is copied, the rest is zero (False)."""
+    out = np.zeros(new.shape, dtype=mask.dtype)
     dr = int(round((old.origin_xy[1] - new.origin_xy[1]) / new.resolution_m))
     dc = int(round((old.origin_xy[0] - new.origin_xy[0]) / new.resolution_m))
     r0, c0 = max(dr, 0), max(dc, 0)
@@ -111,10 +116,15 @@ def moved_mask(mask: np.ndarray, old: GridSpec, new: GridSpec) -> np.ndarray:
 
 class Transit(GoalPlanner):
     """Flies the vehicle to a point of a global route inside the window (:attr:`via_xy_m`) along the window's fine
-    graph with the shared follower; answers ``None`` (no spin) when it cannot get there or has arrived."""
+    graph with the shared follower; answers ``None`` (no spin) when it cannot get there or has arrived.
 
-    def __init__(self, config: PlannerConfig, table: ActionTable | None) -> None:
+    It flies to a graph node within ``reach_m`` of the point; a route point keeps more than that from every wall it
+    knows (:attr:`RouteConfig.min_clearance_m`), so the node lies on the route's side of any wall near it (with a
+    looser reach the vehicle flew to the far side of a thin wall, and back when the window moved)."""
+
+    def __init__(self, config: PlannerConfig, table: ActionTable | None, reach_m: float) -> None:
         super().__init__(config, table)
+        self.reach_m = reach_m
         self.via_xy_m: np.ndarray | None = None
         self.arrived = False
 
@@ -138,7 +148,7 @@ class Transit(GoalPlanner):
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         if not view.frontier.any():
             return None
-        return nearest_frontier_goal(view, pose, view.frontier, 2.0 * self.config.goal_radius_m)
+        return nearest_frontier_goal(view, pose, view.frontier, self.reach_m)
 
     def status(self, goal: Goal, view: View, pose: Pose) -> str:
         if not view.traversable.contains_path(goal.path_xy_m):
@@ -159,7 +169,7 @@ class WindowedPlanner:
     def __init__(self, local: GoalPlanner, config: WindowConfig = WindowConfig()) -> None:
         self.local = local
         self.config = config
-        self.transit = Transit(local.config, local.table)
+        self.transit = Transit(local.config, local.table, 0.9 * config.route.min_clearance_m)
         self.reset()
 
     def reset(self) -> None:
@@ -169,8 +179,9 @@ class WindowedPlanner:
         self._grid: GridSpec | None = None  # the whole 0.20 m map's grid the memory below lies on
         self._memory: dict[str, np.ndarray] = {}  # the local planner's memory on the whole map
         self._dropped: np.ndarray | None = None  # targets the global layer gave up on (bool, whole map)
+        self._routed: np.ndarray | None = None  # how often each cell was a route's target (uint8, whole map)
         self.route: Route | None = None
-        self._route_ends = False  # whether the transit's point is the route's end
+        self._via = -1  # the index along the route of the transit's point
         self._failed_routes = 0
         self.routes = 0  # global decisions this flight
 
@@ -196,7 +207,7 @@ class WindowedPlanner:
             if action is not None:
                 self.route, self._failed_routes = None, 0
                 return action
-            if not self._new_route(maps, pose, fused_low):
+            if not self._route_live(maps, fused_low) and not self._new_route(maps, pose, fused_low):
                 return None
         for _ in range(_TRANSIT_TRIES):
             assert self.window is not None
@@ -205,11 +216,14 @@ class WindowedPlanner:
             action = self.transit.act(crop, pose, previous_action, fused_crop)
             if action is not None:
                 return action
+            via = self._via
             if self._follow(maps, pose, force=True):  # arrived off-centre: the window centres, the local planner looks
                 action = self._local_act(maps, pose, previous_action, fused_low, True)
                 if action is not None:
                     self.route, self._failed_routes = None, 0
                     return action
+                if self._via > via:
+                    continue  # on along the route from the centred window
             if not self._route_failed(maps, pose, fused_low):
                 return None
         return None
@@ -239,11 +253,13 @@ class WindowedPlanner:
         elif self._grid != grid:  # maps that grew: the whole-map memory follows the new grid, the route ends
             self._park()
             self._memory = {k: moved_mask(v, self._grid, grid) for k, v in self._memory.items()}
-            if self._dropped is not None:
+            if self._dropped is not None and self._routed is not None:
                 self._dropped = moved_mask(self._dropped, self._grid, grid)
+                self._routed = moved_mask(self._routed, self._grid, grid)
             self._grid, self.window, self.route = grid, None, None
-        if self._dropped is None:
+        if self._dropped is None or self._routed is None:
             self._dropped = np.zeros(grid.shape, dtype=bool)
+            self._routed = np.zeros(grid.shape, dtype=np.uint8)
         wanted = place_window(grid, pose[:2], self.config.size_m)
         if self.window is not None:
             shift = max(abs(wanted.row0 - self.window.row0), abs(wanted.col0 - self.window.col0))
@@ -254,7 +270,7 @@ class WindowedPlanner:
         self.local.remember({k: np.ascontiguousarray(v[wanted.slices()]) for k, v in self._memory.items()})
         self.transit.remember({})
         if self.route is not None:
-            self._lead(self.route)
+            self._lead(self.route, onward_only=True)
         return True
 
     def _park(self) -> None:
@@ -287,37 +303,67 @@ class WindowedPlanner:
         inside[self._inner()] = True
         return inside
 
-    def _new_route(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None) -> bool:
-        """Route to the nearest target outside the window; whether there is one."""
+    def _targets(self, maps: ObservedMaps, fused_low: np.ndarray | None) -> np.ndarray:
+        """bool on the whole map: what the local planner would explore, less what either layer dropped."""
         self._park()
         assert self._dropped is not None
         dropped = self._dropped | self._memory.get("dropped", np.zeros_like(self._dropped))
-        targets = self.local.targets(maps.low, fused_low) & ~dropped & ~self._inside()
-        self.routes += 1
-        self.route = nearest_route(maps.low, maps.low_grid, targets, pose[:2], self.config.route)
-        if self.route is None:
-            return False
+        return self.local.targets(maps.low, fused_low) & ~dropped
+
+    def _route_live(self, maps: ObservedMaps, fused_low: np.ndarray | None) -> bool:
+        """Whether there is a route and its target is still there to explore."""
+        return self.route is not None and bool(self._targets(maps, fused_low).flat[self.route.target_cells].any())
+
+    def _new_route(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None) -> bool:
+        """Route to the nearest target outside the window; whether there is one."""
+        assert self._routed is not None
+        targets = self._targets(maps, fused_low) & ~self._inside()
+        while True:
+            self.routes += 1
+            self.route = nearest_route(maps.low, maps.low_grid, targets, pose[:2], self.config.route)
+            if self.route is None:
+                return False
+            cells = self.route.target_cells
+            self._routed.flat[cells] = np.minimum(self._routed.flat[cells], 254) + 1
+            if self._routed.flat[cells].max() <= _ROUTES_PER_TARGET:
+                break
+            targets &= ~self._drop(cells)
         self._lead(self.route)
         return True
 
-    def _lead(self, route: Route) -> None:
-        """Point the transit at the last point of ``route`` inside the window (less the margin)."""
+    def _lead(self, route: Route, onward_only: bool = False) -> None:
+        """Point the transit at the last point of ``route`` before it leaves the window (less the margin); with
+        ``onward_only``, only when that lies further along the route than the transit's point or that point has
+        left the window."""
         assert self._grid is not None
         rows, cols = self._inner()
         (x0, y0), r = self._grid.origin_xy, self._grid.resolution_m
         box = (x0 + cols.start * r, y0 + rows.start * r, x0 + cols.stop * r, y0 + rows.stop * r)
-        via, self._route_ends = via_point(route.path_xy_m, box)
-        self.transit.lead_to(via)
+        via = via_index(route.path_xy_m, box)
+        if onward_only and 0 <= self._via < len(route.path_xy_m) and via <= self._via:
+            x, y = route.path_xy_m[self._via]
+            if box[0] <= x <= box[2] and box[1] <= y <= box[3]:
+                return  # the transit's point is still in the window and no further along: it stays
+        self._via = via
+        self.transit.lead_to(route.path_xy_m[via])
+
+    def _drop(self, cells: np.ndarray) -> np.ndarray:
+        """Drop the target ``cells`` (flat indices on the whole map) and the cells within two of them for the
+        flight; the mask of what was dropped."""
+        assert self._dropped is not None
+        targets = np.zeros(self._dropped.shape, dtype=np.uint8)
+        targets.flat[cells] = 1
+        dropped = cv2.dilate(targets, np.ones((5, 5), np.uint8)).astype(bool)
+        self._dropped |= dropped
+        return dropped
 
     def _route_failed(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None) -> bool:
         """The transit reached its point or could not: drop the route's target when that was the route's end (the
         local planner did not take it) or after :data:`_TRANSIT_TRIES` failures; then route anew. Whether a new
         route exists."""
-        assert self.route is not None and self._dropped is not None
+        assert self.route is not None
         self._failed_routes += 1
-        if self._route_ends or self._failed_routes >= _TRANSIT_TRIES:
-            targets = np.zeros(self._dropped.shape, dtype=np.uint8)
-            targets.flat[self.route.target_cells] = 1
-            self._dropped |= cv2.dilate(targets, np.ones((5, 5), np.uint8)).astype(bool)
+        if self._via == len(self.route.path_xy_m) - 1 or self._failed_routes >= _TRANSIT_TRIES:
+            self._drop(self.route.target_cells)
             self._failed_routes = 0
         return self._new_route(maps, pose, fused_low)

@@ -9,7 +9,7 @@ import pytest
 from edge_explorer.mapping.observed import ObservedMaps, coarsen_codes
 from edge_explorer.plan.frontier import NearestFrontier
 from edge_explorer.plan.registry import build_planner
-from edge_explorer.plan.route import RouteConfig, nearest_route, via_point
+from edge_explorer.plan.route import RouteConfig, nearest_route, via_index
 from edge_explorer.plan.window import (
     Window,
     WindowConfig,
@@ -87,8 +87,9 @@ def test_a_route_leads_to_the_nearest_target_and_its_window_point():
     assert abs(route.path_xy_m[-1, 0] - 10.1) < 0.7
     assert np.ravel_multi_index((5, 50), low.shape) in route.target_cells
     assert 8.5 < route.length_m < 10.0  # it ends goal_radius_m short of the target
-    via, is_end = via_point(route.path_xy_m, (0.0, 0.0, 6.0, 2.0))
-    assert not is_end and via[0] <= 6.0 and via[0] > 5.5
+    via = via_index(route.path_xy_m, (0.0, 0.0, 6.0, 2.0))
+    assert via < len(route.path_xy_m) - 1 and 5.5 < route.path_xy_m[via, 0] <= 6.0
+    assert via_index(route.path_xy_m, (0.0, 0.0, 80.0, 2.0)) == len(route.path_xy_m) - 1
     assert nearest_route(low, grid, np.zeros_like(targets), (0.5, 1.0), RouteConfig()) is None
 
 
@@ -126,6 +127,27 @@ def test_on_a_200_m_corridor_the_local_planner_sees_only_its_window_and_a_route_
     assert seen and max(max(s) for s in seen) * LOW_RES_M <= WindowConfig().size_m + 1e-9
     assert planner.route is not None and planner.route.path_xy_m[-1, 0] > 188.0  # on to the unknown far end
     assert planner.routes >= 1
+
+
+def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
+    # two corridors side by side, split by a 0.1 m wall open at its east end: the point lies across the wall from
+    # the vehicle, so the transit must fly round (it once flew to the near side, 1 m away, and back)
+    walls = (
+        Rect(0.0, 0.0, 30.0, 0.1),
+        Rect(0.0, 3.9, 30.0, 4.0),
+        Rect(0.0, 0.0, 0.1, 4.0),
+        Rect(29.9, 0.0, 30.0, 4.0),
+        Rect(0.0, 1.95, 26.0, 2.05),
+    )
+    outline = ((0.0, 0.0), (30.0, 0.0), (30.0, 4.0), (0.0, 4.0))
+    raster = rasterize(FloorPlan("split-corridor", outline, walls, (), ()), 0.05)
+    transit = WindowedPlanner(NearestFrontier()).transit
+    transit.reset()
+    transit.lead_to(np.array([5.0, 3.0]))
+    assert transit.act(observed_up_to(raster, 30.0), (5.0, 1.0, 0.0), 0) is not None
+    path = transit._goal.path_xy_m
+    assert path[-1, 1] > 2.05 and np.hypot(*(path[-1] - (5.0, 3.0))) < 0.6
+    assert np.hypot(*np.diff(path, axis=0).T).sum() > 40.0  # round the wall's open end and back
 
 
 @pytest.mark.slow
