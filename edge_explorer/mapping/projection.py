@@ -12,7 +12,8 @@ from ``max_z_m`` (2.5 m) up. The flight height, 1.7 m, lies inside the band. Col
 
 The result is an int8 code array on the voxel map's :class:`GridSpec` (same origin and resolution as its
 columns). Place the voxel region on a plan grid's origin and :func:`align_to_grid` crops or pads it onto any
-grid that nests with it, e.g. the grids of ``PlanRaster.truth_codes()`` and of ``PlanRaster.coarsened(0.20)``.
+grid that nests with it, e.g. the grids of ``PlanRaster.truth_codes()`` and of ``PlanRaster.coarsened(0.20)``;
+:func:`onto_grid` also takes codes onto a grid that does not nest (nearest cell centre).
 """
 
 from __future__ import annotations
@@ -133,4 +134,21 @@ def align_to_grid(codes: np.ndarray, grid: GridSpec, target: GridSpec) -> np.nda
     c1 = min(cols, grid.shape[1] - dcol)
     if r1 > r0 and c1 > c0:
         out[r0:r1, c0:c1] = codes[r0 + drow : r1 + drow, c0 + dcol : c1 + dcol]
+    return out
+
+
+def onto_grid(codes: np.ndarray, grid: GridSpec, target: GridSpec) -> np.ndarray:
+    """``codes`` (on ``grid``) on ``target``: :func:`align_to_grid` when the grids nest, else each target cell takes
+    the code of the ``grid`` cell holding its centre (UNKNOWN outside ``grid``). A map that grows from take-off
+    nests with a plan grid when both origins lie on the 0.20 m lattice; this covers the others."""
+    try:
+        return align_to_grid(codes, grid, target)
+    except ValueError:
+        pass
+    rows, cols = np.indices(target.shape)
+    x, y = target.center_of(rows, cols)
+    src_rows, src_cols = grid.cell_of(x, y)
+    inside = grid.contains(src_rows, src_cols)
+    out = np.full(target.shape, UNKNOWN, dtype=CELL_DTYPE)
+    out[inside] = codes[src_rows[inside], src_cols[inside]]
     return out

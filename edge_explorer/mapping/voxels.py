@@ -27,9 +27,12 @@ milliseconds on one core:
   p_hit 0.7, p_miss 0.4, clamp 0.12 / 0.97; a voxel is occupied when ``L ≥ logit(occupancy_threshold)`` (0.5),
   free when known and below it. Log-odds are int16 in units of 1/1000 (:data:`LOGODDS_SCALE`);
   :data:`UNKNOWN_LOGODDS` marks never-observed voxels.
-* Rays are traversed with the Amanatides–Woo 3-D DDA, clipped to the map's box; the box is fixed (a local region,
-  default 24 m × 14 m × 3.4 m: a 21 m × 11 m building plus margin, from just below the floor to above a 3 m
-  ceiling). Arrays are indexed [row (y), col (x), layer (z)] so rows and columns match a :class:`GridSpec`.
+* Rays are traversed with the Amanatides–Woo 3-D DDA, clipped to the map's box (a :class:`VoxelRegion`, default
+  24 m × 14 m × 3.4 m). Arrays are indexed [row (y), col (x), layer (z)] so rows and columns match a
+  :class:`GridSpec`. Voxel coordinates are counted from the region's origin (the *anchor*); a grid whose array
+  starts ``offset_cells`` (rows, cols) away from it covers another box of the same lattice, and a ray is traced
+  with the same floating-point numbers whatever box it is cast into — :mod:`edge_explorer.mapping.growing` moves
+  and grows boxes this way, and what it fuses is bit-for-bit what one large fixed box would hold.
 
 Bad input (shape, dtype, negative depth, NaN pose, time going backwards) raises :class:`FusionInputError`
 before anything is written: a rejected frame leaves the maps byte-for-byte unchanged.
@@ -153,20 +156,41 @@ class VoxelGrid:
         self.shape = region.shape_at(resolution_m)
         self.log_odds = np.full(self.shape, UNKNOWN_LOGODDS, dtype=np.int16)
         self._stamp = np.zeros(self.shape, dtype=np.uint16)  # frame number of each voxel's last update
+        self.offset_cells = (0, 0)  # (row, col) of array element [0, 0] counted from the anchor (origin_xyz_m)
 
     @property
     def grid(self) -> GridSpec:
         """The 2-D grid of this map's columns (what projection produces)."""
-        return GridSpec(self.origin_xyz_m[:2], self.resolution_m, self.shape[:2])
+        x0, y0 = (
+            o + k * self.resolution_m for o, k in zip(self.origin_xyz_m[:2], self.offset_cells[::-1], strict=True)
+        )
+        return GridSpec((x0, y0), self.resolution_m, self.shape[:2])
+
+    def reframe(self, row0: int, col0: int, rows: int, cols: int) -> None:
+        """Cover anchor cells [row0, row0 + rows) × [col0, col0 + cols) instead: what the two boxes share keeps its
+        log-odds, the rest is unknown. Only between frames (the frame stamps are cleared)."""
+        old, (r_old, c_old) = self.log_odds, self.offset_cells
+        self.log_odds = np.full((rows, cols, self.shape[2]), UNKNOWN_LOGODDS, dtype=np.int16)
+        r_lo, r_hi = max(row0, r_old), min(row0 + rows, r_old + old.shape[0])
+        c_lo, c_hi = max(col0, c_old), min(col0 + cols, c_old + old.shape[1])
+        if r_hi > r_lo and c_hi > c_lo:
+            self.log_odds[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0] = old[
+                r_lo - r_old : r_hi - r_old, c_lo - c_old : c_hi - c_old
+            ]
+        del old
+        self._stamp = np.zeros(self.log_odds.shape, dtype=np.uint16)
+        self.shape = self.log_odds.shape
+        self.offset_cells = (row0, col0)
 
     def layer_centers_m(self) -> np.ndarray:
         return self.origin_xyz_m[2] + (np.arange(self.shape[2]) + 0.5) * self.resolution_m
 
     def index_of(self, x_m: float, y_m: float, z_m: float) -> tuple[int, int, int]:
-        """(row, col, layer) of the voxel containing a ``map`` point (may be out of bounds)."""
+        """(row, col, layer) array index of the voxel containing a ``map`` point (may be out of bounds)."""
         x0, y0, z0 = self.origin_xyz_m
         r = self.resolution_m
-        return (math.floor((y_m - y0) / r), math.floor((x_m - x0) / r), math.floor((z_m - z0) / r))
+        row0, col0 = self.offset_cells
+        return (math.floor((y_m - y0) / r) - row0, math.floor((x_m - x0) / r) - col0, math.floor((z_m - z0) / r))
 
 
 @dataclass(frozen=True)
@@ -222,6 +246,7 @@ class VoxelMaps:
             self.high._stamp[...] = 0
             self.low._stamp[...] = 0
             self._frame = 1
+        self._before_insert(position)
         rays = []
         for vox in (self.high, self.low):
             rays.append(
@@ -231,6 +256,8 @@ class VoxelMaps:
                     np.uint16(self._frame),
                     np.asarray(vox.origin_xyz_m),
                     vox.resolution_m,
+                    vox.offset_cells[0],
+                    vox.offset_cells[1],
                     points,
                     position,
                     self.config.max_range_m,
@@ -246,6 +273,9 @@ class VoxelMaps:
         self.last_timestamp_s = float(timestamp_s)
         self.frames_fused += 1
         return FusionStats(len(points), rays[0], rays[1])
+
+    def _before_insert(self, position_m: np.ndarray) -> None:
+        """Called with a valid frame's camera position before anything is written (a growing map moves here)."""
 
     def _validate(
         self,
@@ -382,9 +412,12 @@ def _first_visit(keys, used, ix, iy, iz):
 
 @numba.njit(cache=True, nogil=True)
 def _fuse_kernel(
-    log_odds, stamp, frame, origin, res, points, sensor, max_range, hit, miss, lo, hi, targets, seen_keys, seen_used
-):
+    log_odds, stamp, frame, origin, res, oy, ox, points, sensor, max_range, hit, miss, lo, hi, targets, seen_keys,
+    seen_used,
+):  # fmt: skip
     """Discretised OctoMap insert of one point cloud into one voxel grid; returns the number of rays cast.
+
+    Voxel coordinates count from ``origin``; the arrays hold rows oy … oy + ny − 1 and columns ox … ox + nx − 1.
 
     ``targets`` (≥ len(points) rows) and the set (``seen_keys``, ``seen_used``: a power-of-two size ≥ 2 ×
     len(points)) are scratch; the set is emptied here."""
@@ -410,8 +443,8 @@ def _fuse_kernel(
         dz = iz + 0.5 - s2
         dist = math.sqrt(dx * dx + dy * dy + dz * dz)
         scale = 1.0
-        if dist <= max_range_vox and 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz:
-            flat = (iy * nx + ix) * nz + iz
+        if dist <= max_range_vox and ox <= ix < ox + nx and oy <= iy < oy + ny and 0 <= iz < nz:
+            flat = ((iy - oy) * nx + (ix - ox)) * nz + iz
             if st_flat[flat] == frame:
                 continue  # this voxel already took its hit and queued its ray
             st_flat[flat] = frame
@@ -429,39 +462,41 @@ def _fuse_kernel(
     # Pass 2: one miss for every voxel crossed before each ray's end voxel, unless updated this frame.
     for k in range(n_targets):
         _free_ray(
-            lo_flat, st_flat, frame, nx, ny, nz, s0, s1, s2, targets[k, 0], targets[k, 1], targets[k, 2], miss, lo
-        )
+            lo_flat, st_flat, frame, ox, oy, nx, ny, nz, s0, s1, s2, targets[k, 0], targets[k, 1], targets[k, 2], miss,
+            lo,
+        )  # fmt: skip
     return n_targets
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _free_ray(lo_flat, st_flat, frame, nx, ny, nz, p0, p1, p2, e0, e1, e2, miss, lo):
-    """Amanatides–Woo traversal from p to e (voxel units) inside the grid, excluding e's voxel."""
+def _free_ray(lo_flat, st_flat, frame, ox, oy, nx, ny, nz, p0, p1, p2, e0, e1, e2, miss, lo):
+    """Amanatides–Woo traversal from p to e (voxel units) inside the box [ox, ox + nx) × [oy, oy + ny) × [0, nz),
+    excluding e's voxel."""
     d0 = e0 - p0
     d1 = e1 - p1
     d2 = e2 - p2
-    # Where the segment t ∈ [0, 1] enters the box [0, n)³ (slab test); nothing to do if it misses the box.
+    # Where the segment t ∈ [0, 1] enters the box (slab test); nothing to do if it misses the box.
     t_lo = 0.0
     t_hi = 1.0
-    for p, d, n in ((p0, d0, nx), (p1, d1, ny), (p2, d2, nz)):
+    for p, d, a, n in ((p0, d0, ox, nx), (p1, d1, oy, ny), (p2, d2, 0, nz)):
         if d == 0.0:
-            if p < 0.0 or p >= n:
+            if p < a or p >= a + n:
                 return
         else:
-            ta = -p / d
-            tb = (n - p) / d
+            ta = (a - p) / d
+            tb = (a + n - p) / d
             t_lo = max(t_lo, min(ta, tb))
             t_hi = min(t_hi, max(ta, tb))
     if t_lo >= t_hi:
         return
-    ix = min(max(int(math.floor(p0 + d0 * t_lo)), 0), nx - 1)
-    iy = min(max(int(math.floor(p1 + d1 * t_lo)), 0), ny - 1)
+    ix = min(max(int(math.floor(p0 + d0 * t_lo)), ox), ox + nx - 1)
+    iy = min(max(int(math.floor(p1 + d1 * t_lo)), oy), oy + ny - 1)
     iz = min(max(int(math.floor(p2 + d2 * t_lo)), 0), nz - 1)
     # Each step moves one index by one towards e's voxel, so the step count is their Manhattan distance;
     # a ray leaving the box stops at its face (the out_* index).
     n_steps = abs(int(math.floor(e0)) - ix) + abs(int(math.floor(e1)) - iy) + abs(int(math.floor(e2)) - iz)
-    sx, out_x = (1, nx) if d0 > 0 else (-1, -1)
-    sy, out_y = (1, ny) if d1 > 0 else (-1, -1)
+    sx, out_x = (1, ox + nx) if d0 > 0 else (-1, ox - 1)
+    sy, out_y = (1, oy + ny) if d1 > 0 else (-1, oy - 1)
     sz, out_z = (1, nz) if d2 > 0 else (-1, -1)
     tx = ((ix + (1 if d0 > 0 else 0)) - p0) / d0 if d0 != 0.0 else math.inf
     ty = ((iy + (1 if d1 > 0 else 0)) - p1) / d1 if d1 != 0.0 else math.inf
@@ -469,7 +504,7 @@ def _free_ray(lo_flat, st_flat, frame, nx, ny, nz, p0, p1, p2, e0, e1, e2, miss,
     dtx = abs(1.0 / d0) if d0 != 0.0 else math.inf
     dty = abs(1.0 / d1) if d1 != 0.0 else math.inf
     dtz = abs(1.0 / d2) if d2 != 0.0 else math.inf
-    flat = (iy * nx + ix) * nz + iz  # [y, x, z] C order
+    flat = ((iy - oy) * nx + (ix - ox)) * nz + iz  # [y, x, z] C order
     step_x = sx * nz
     step_y = sy * nx * nz
     for _ in range(n_steps):

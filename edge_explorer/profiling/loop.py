@@ -39,7 +39,6 @@ from edge_explorer.runtime.daemon import (
     DaemonConfig,
     ModelSetupError,
     Progress,
-    band_z_range_m,
     choose_models,
 )
 from edge_explorer.runtime.depth_sources import DepthFrame, DepthSource, Recorder
@@ -194,7 +193,6 @@ def measure_loop(options: LoopOptions, on_decision: Callable[[int], None] = lamb
     """
     from contextlib import ExitStack
 
-    from edge_explorer.mapping.voxels import VoxelRegion
     from edge_explorer.runtime.depth_sources import ReplayDepthSource
     from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
     from edge_explorer.sim.camera import DepthCamera
@@ -244,7 +242,6 @@ def measure_loop(options: LoopOptions, on_decision: Callable[[int], None] = lamb
             models.policy,
             models.predictor,
             truth=CoverageTruth(raster),
-            region=VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)),
             recorder=recorder,
         )
         window = _Window(daemon, source, options, on_decision)

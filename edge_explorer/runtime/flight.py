@@ -88,9 +88,8 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
                 warm_kernels(raster, camera)
             log.info("numba kernels loaded; %.1f MB of LLVM's pages released", release_llvm_pages())
 
-        from edge_explorer.mapping.voxels import VoxelRegion
         from edge_explorer.plan.registry import PLANNERS
-        from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, band_z_range_m, choose_models
+        from edge_explorer.runtime.daemon import CoverageTruth, Daemon, DaemonConfig, choose_models
         from edge_explorer.runtime.depth_sources import Recorder
         from edge_explorer.runtime.flight_summary import print_summary, run_summary, write_summary
         from edge_explorer.runtime.mavlink_link import LinkConfig, MavlinkLink
@@ -139,7 +138,6 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
                 models.policy,
                 models.predictor,
                 truth=CoverageTruth(raster) if raster is not None else None,
-                region=VoxelRegion.covering(raster.grid, *band_z_range_m(config.band)) if raster is not None else None,
                 recorder=recorder,
             )
             vehicle_thread = simulation.vehicle_thread if simulation is not None else None

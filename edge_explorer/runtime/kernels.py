@@ -50,9 +50,10 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     import numpy as np
 
     from edge_explorer.mapping.ego import inflate_codes
+    from edge_explorer.mapping.growing import GrowingMaps, GrowthConfig
     from edge_explorer.mapping.metrics import map_metrics
-    from edge_explorer.mapping.projection import HeightBand, project
-    from edge_explorer.mapping.voxels import FusionConfig, VoxelMaps, VoxelRegion
+    from edge_explorer.mapping.projection import HeightBand
+    from edge_explorer.mapping.voxels import FusionConfig
     from edge_explorer.vehicle.camera import CameraConfig, CameraPose
     from edge_explorer.vehicle.dynamics import swept_path_blocked
     from edge_explorer.world.grid import LOW_RES_M
@@ -69,12 +70,12 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     else:
         intrinsics = CameraConfig().intrinsics
         depth_m = np.full(intrinsics.shape, 2.0, dtype=np.float32)
-    # A 2 m box around the pose (the flight's maps cover the building; the kernels' argument types are the same).
-    region = VoxelRegion((x_m - 1.0, y_m - 1.0, band.min_z_m - LOW_RES_M), (2.0, 2.0, 1.4))
-    maps = VoxelMaps(region, FusionConfig())
+    # Small boxes around the pose (the flight's grow; the kernels' argument types are the same).
+    z_range = (band.min_z_m - LOW_RES_M, band.min_z_m + 1.2)
+    maps = GrowingMaps(x_m, y_m, z_range, FusionConfig(), GrowthConfig(window_m=12.0, start_m=2.0), band)
     maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
-    high, high_grid = project(maps.high, band)
-    low, _ = project(maps.low, band)
+    maps.ensure_covers(x_m + 8.0, y_m)  # a growth and a move of the 0.05 m window (its shift kernel)
+    high, high_grid, low, _ = maps.project()
     coarse = raster.coarsened(LOW_RES_M)
     truth, interior = coarse.truth_codes(), coarse.interior
     shape = truth.shape

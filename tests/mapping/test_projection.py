@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from edge_explorer.mapping.projection import HeightBand, align_to_grid, project
+from edge_explorer.mapping.projection import HeightBand, align_to_grid, onto_grid, project
 from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
 from edge_explorer.sim.camera import DepthCamera
 from edge_explorer.vehicle.camera import CameraConfig, CameraPose
@@ -49,6 +49,17 @@ def test_align_to_grid_crops_and_pads() -> None:
         align_to_grid(codes, grid, GridSpec((0.0, 0.0), 0.05, (3, 3)))
     with pytest.raises(ValueError, match="whole cells"):
         align_to_grid(codes, grid, GridSpec((0.1, 0.0), 0.2, (3, 3)))
+
+
+def test_onto_grid_nests_when_it_can_and_else_takes_the_nearest_cell() -> None:
+    """A grown map's grid need not nest with a plan's: each target cell then takes the code under its centre."""
+    codes = np.arange(12, dtype=np.int8).reshape(3, 4)
+    grid = GridSpec((0.0, 0.0), 0.2, (3, 4))
+    nested = GridSpec((0.2, -0.2), 0.2, (3, 3))
+    np.testing.assert_array_equal(onto_grid(codes, grid, nested), align_to_grid(codes, grid, nested))
+    shifted = onto_grid(codes, grid, GridSpec((0.15, 0.05), 0.2, (3, 4)))  # centres at x 0.25, 0.45 …
+    np.testing.assert_array_equal(shifted[0], [1, 2, 3, UNKNOWN])
+    np.testing.assert_array_equal(shifted[2], [9, 10, 11, UNKNOWN])
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,6 @@ from edge_explorer.cli import main
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.mapping.projection import align_to_grid
-from edge_explorer.mapping.voxels import VoxelRegion
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
@@ -247,7 +246,6 @@ def fly(
                     policy=policy,
                     predictor=predictor,
                     truth=CoverageTruth(raster) if truth else None,
-                    region=VoxelRegion.covering(raster.grid),
                 )
                 outcome: dict[str, object] = {}
 
@@ -306,6 +304,10 @@ def test_explores_reaches_the_coverage_goal_and_flies_home(raster, camera, tmp_p
     assert report.waypoint_sources.get("frontier", 0) > 0
     assert {"fuse", "project", "planner", "waypoint_trajectory", "coverage", "decision"} <= set(report.stages)
     assert flight.vehicle.setpoint_rate_hz >= 10.0  # the setpoint stream, as PX4 offboard needs
+    # The maps were not sized from the plan (4 m × 3 m, its grid from -0.4 m): a box around the take-off point.
+    grid = flight.daemon.maps.grid
+    assert grid.size_xy_m == pytest.approx((16.0, 16.0))
+    assert grid.origin_xy == pytest.approx((START_XYZ[0] - 8.0, START_XYZ[1] - 8.0), abs=0.21)
     # No phantom obstacles: every observed OCCUPIED cell lies within 0.15 m of a wall of the plan (ceiling returns
     # fused at a wrong attitude used to land in free space and close doors).
     view = flight.daemon.view

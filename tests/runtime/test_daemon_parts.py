@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from edge_explorer.mapping.observed import ObservedMaps
-from edge_explorer.mapping.voxels import VoxelRegion
 from edge_explorer.plan.registry import build_planner
 from edge_explorer.runtime.daemon import (
     DaemonConfig,
@@ -180,8 +179,7 @@ def test_the_watchdog_fuses_a_good_frame_and_stamps_the_flown_footprint():
     k = DepthIntrinsics.d435()
     link = FakeLink(Pose(10.0, 2.0, 1.5, CONFIG.flight_height_m, 0.0))  # at band height: the footprint counts
     watchdog, _, record = _watchdog(link)
-    watchdog.maps.region = VoxelRegion.covering(GridSpec((0.0, 0.0), 0.05, (80, 80)), 0.0, 2.6)
-    watchdog.maps.reset()
+    watchdog.maps.start(2.0, 1.5, CONFIG.band)
     watchdog.ingest(DepthFrame(np.full(k.shape, 1.5, np.float32), 10.0, k))
     assert record.frames_fused == 1 and record.frames_dropped == {}
     flown, grid = watchdog.maps.flown, watchdog.maps.flown_grid
@@ -387,15 +385,15 @@ def test_decisions_explore_until_the_time_limit_then_hold(clock):
     at the time limit exploration ends and, return_home off, the waypoint is a hold. Every decision is recorded."""
     pipeline = _pipeline()
     phases, maps, record = pipeline.phases, pipeline.maps, pipeline.record
-    maps.region = VoxelRegion.covering(GridSpec((0.0, 0.0), 0.05, (80, 80)), 0.0, 2.6)
-    maps.reset()
+    maps.start(1.0, 1.0, CONFIG.band)
     phases.climb()
     clock.now += 5.0
     phases.check_takeoff_done(replace(pipeline.link.pose, z_m=CONFIG.flight_height_m), pipeline.planner_name)
     assert phases.phase == "exploring"
     pipeline.decide(clock.now, time.thread_time())
     assert phases.phase == "exploring" and (record.decisions, record.sources) == (1, {"frontier": 1})
-    assert pipeline.view is not None and pipeline.view.high.shape == (80, 80) and pipeline.view.thresholded is None
+    assert pipeline.view is not None and pipeline.view.thresholded is None
+    assert pipeline.view.high.shape == (320, 320)  # the first box: 16 m around the take-off point
     assert {"project", "planner", "waypoint_trajectory", "decision", "decision_cpu"} <= set(record.timings.stats())
     clock.now += CONFIG.time_limit_s
     pipeline.decide(clock.now, time.thread_time())
@@ -444,3 +442,25 @@ def test_the_record_measures_the_unverified_area_without_a_plan():
     )
     assert report.unverified_m2 == 0.0 and report.verified_m2 == pytest.approx(16 * 16 * 0.04)
     assert report.unverified == {"unknown_reachable_m2": 0.0, "expected_wrong_m2": 0.0, "predicted_m2": 0.0}
+
+
+def test_the_daemons_maps_are_not_sized_from_the_plan():
+    """The daemon takes no map box (a plan only scores coverage): its maps start around the take-off point, the
+    same whatever the building, and grow when the vehicle flies past them."""
+    import inspect
+
+    from edge_explorer.runtime.daemon import Daemon
+
+    assert "region" not in inspect.signature(Daemon).parameters
+    maps = FlightMaps(CONFIG.fusion)
+    maps.start(30.03, -4.1, CONFIG.band)
+    assert maps.region is not None and maps.flown_grid is not None
+    assert maps.region.size_xyz_m[:2] == pytest.approx((16.0, 16.0))
+    assert maps.flown_grid.origin_xy == pytest.approx((22.0, -12.2))  # take-off on the 0.20 m lattice, − 8 m
+    assert maps.voxels is not None
+    maps.voxels.ensure_covers(60.0, -4.1)  # a frame from 30 m further on
+    assert maps.region.size_xyz_m[0] >= 30.0 + 2 * maps.voxels.reach_m
+    maps.mark_flown(60.0, -4.1, 0.2)
+    high, grid, _, _ = maps.project(CONFIG.band)
+    assert high[grid.cell_of(60.0, -4.1)] == FREE
+

@@ -6,7 +6,9 @@ One process, one loop (:class:`Daemon`), no torch. Around the loop the parts it 
   last one: dropped, with a rate-limited log line and a count per reason), take the pose at the frame's timestamp
   from the link's odometry buffer (a replayed frame brings its own), fuse it into the 0.05 m and 0.20 m voxel maps.
   :meth:`~edge_explorer.mapping.voxels.VoxelMaps.fuse` validates before it writes, so a rejected frame never
-  corrupts the maps.
+  corrupts the maps. The maps are never sized from a plan: they start around the take-off point and grow as the
+  vehicle observes (:mod:`edge_explorer.mapping.growing`: a growing 0.20 m map, a 0.05 m window that follows the
+  vehicle over a growing 2-D 0.05 m map).
 * **Per decision** (one per step period, 1 s by default, the period of the shared action table: a decision is due
   when the vehicle's reference reaches the previous waypoint, and is taken on the last frame before that, so the
   new segment starts without a pause): project both maps, run the predictor and threshold its output (when a

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from edge_explorer.mapping.growing import GrowthConfig
 from edge_explorer.mapping.projection import HeightBand
 from edge_explorer.mapping.voxels import FusionConfig
 from edge_explorer.plan.follow import FollowConfig
@@ -58,6 +59,7 @@ class DaemonConfig:
     progress_every_s: float = 5.0
     band: HeightBand = field(default_factory=HeightBand)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    map_growth: GrowthConfig = field(default_factory=GrowthConfig)  # the maps grow from take-off (mapping/growing.py)
     thresholds: ThresholdConfig = field(default_factory=ThresholdConfig)
     # Mean-safe motions (noise_sigmas 0): the 3-sigma preference of the benchmark's follower models the training
     # simulator's per-action motion noise, while this vehicle tracks minimum-jerk setpoints (0 collisions in 16

@@ -14,7 +14,7 @@ import logging
 import time
 from collections.abc import Callable
 
-from edge_explorer.mapping.voxels import VoxelMaps, VoxelRegion
+from edge_explorer.mapping.growing import GrowingMaps
 from edge_explorer.plan.frontier import GoalPlanner
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.predict.predictor import PredictorRuntime
@@ -38,8 +38,9 @@ class Daemon:
 
     ``link`` must be started (and connected) by the caller, who also stops it afterwards (that sends the final hold
     setpoint and closes the telemetry log). ``truth`` (a plan of the building) enables coverage and the coverage
-    goal; ``region`` is the voxel maps' box (default: 24 m × 14 m centred on the take-off point). ``recorder``
-    keeps every fused frame with its pose, for replay.
+    goal, nothing else: the maps start around the take-off point and grow as the vehicle observes
+    (:class:`~.state.FlightMaps`), never sized from the plan. ``recorder`` keeps every fused frame with its pose,
+    for replay.
     """
 
     def __init__(
@@ -50,7 +51,6 @@ class Daemon:
         policy: PolicyRuntime | None = None,
         predictor: PredictorRuntime | None = None,
         truth: CoverageTruth | None = None,
-        region: VoxelRegion | None = None,
         table: ActionTable | None = None,
         recorder: Recorder | None = None,
     ) -> None:
@@ -62,7 +62,7 @@ class Daemon:
         self.recorder = recorder
         self.timings = StageTimings()
         self.state = FlightState()
-        self.flight_maps = FlightMaps(config.fusion, region)
+        self.flight_maps = FlightMaps(config.fusion, config.map_growth)
         self.record = RunRecord(config.coverage_goal, self.timings, truth)
         self.feeder = SetpointFeeder(link, config.setpoint_rate_hz, self.timings)
         self.phases = FlightPhases(config, link, self.table, self.feeder, self.state, self.flight_maps, self.record)
@@ -101,7 +101,7 @@ class Daemon:
         return self.state.home_xy
 
     @property
-    def maps(self) -> VoxelMaps | None:
+    def maps(self) -> GrowingMaps | None:
         """The voxel maps (None before take-off; new ones after a pose jump)."""
         return self.flight_maps.voxels
 
@@ -156,6 +156,17 @@ class Daemon:
         if self.state.stop_reason is not None:
             self.state.ending = self.state.stop_reason
             log.warning("stopping: %s; holding position", self.state.stop_reason)
+        maps = self.flight_maps.voxels
+        if maps is not None:
+            width_m, height_m = maps.grid.size_xy_m
+            log.info(
+                "maps grew to %.1f × %.1f m (%d growths, the 0.05 m window moved %d times; %.0f MB of arrays)",
+                width_m,
+                height_m,
+                maps.growths,
+                maps.recentrings,
+                maps.nbytes() / 1e6,
+            )
         if progress is not None:
             progress(self._progress(time.monotonic()))
         return self.record.report(

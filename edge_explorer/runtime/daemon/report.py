@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from edge_explorer.mapping.metrics import MapMetrics, map_metrics
-from edge_explorer.mapping.projection import align_to_grid
+from edge_explorer.mapping.projection import onto_grid
 from edge_explorer.predict.verification import UnverifiedArea
 from edge_explorer.world.flight_space import reachable_cells
 from edge_explorer.world.grid import LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
@@ -148,7 +148,9 @@ def unverified_parts(area: UnverifiedArea) -> dict[str, float]:
 
 
 class CoverageTruth:
-    """The plan's ground truth at 0.20 m, to measure coverage (docs/design.md §7) of maps on any nesting grid."""
+    """The plan's ground truth at 0.20 m, to measure coverage (docs/design.md §7) of maps on any grid: the daemon's
+    grow from take-off, their extent unrelated to the plan's, and are taken onto the plan's grid
+    (:func:`~edge_explorer.mapping.projection.onto_grid`)."""
 
     def __init__(self, raster: PlanRaster) -> None:
         low = raster.coarsened(LOW_RES_M)
@@ -159,14 +161,14 @@ class CoverageTruth:
         self.reachable = block_reduce_max(reachable_cells(raster), factor, low.grid.shape)
 
     def metrics(self, observed: np.ndarray, grid: GridSpec, thresholded: np.ndarray | None) -> MapMetrics:
-        observed = align_to_grid(observed, grid, self.grid)
-        thres = None if thresholded is None else align_to_grid(thresholded, grid, self.grid)
+        observed = onto_grid(observed, grid, self.grid)
+        thres = None if thresholded is None else onto_grid(thresholded, grid, self.grid)
         return map_metrics(observed, self.truth, self.interior, thres)
 
     def unexplored(self, known: np.ndarray, grid: GridSpec) -> tuple[np.ndarray, np.ndarray]:
         """Bool masks on :attr:`grid`: N_M cells UNKNOWN in ``known`` (M_thres, or the observed low-res map), and
         those of them holding a cell the vehicle can reach — to explain a flight that ends short."""
-        unexplored = self.interior & (align_to_grid(known, grid, self.grid) == UNKNOWN)
+        unexplored = self.interior & (onto_grid(known, grid, self.grid) == UNKNOWN)
         return unexplored, unexplored & self.reachable
 
 
