@@ -22,6 +22,10 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
   rule is bounded, so the flight always ends).
 
 The flight ends when neither layer has a target left.
+
+**Maps that grow** (the daemon's, :mod:`edge_explorer.mapping.growing`) change their grid now and then, whether they
+fit the window or not: the planner's memory on the grid moves with it (cells keep their place in metres), its goal,
+whose target cells are indices on the old grid, is forgotten (it replans), and a route ends.
 """
 
 from __future__ import annotations
@@ -176,6 +180,7 @@ class WindowedPlanner:
         self.local.reset()
         self.transit.reset()
         self.window: Window | None = None
+        self._fit_grid: GridSpec | None = None  # the 0.20 m grid of the last maps the local planner saw whole
         self._grid: GridSpec | None = None  # the whole 0.20 m map's grid the memory below lies on
         self._memory: dict[str, np.ndarray] = {}  # the local planner's memory on the whole map
         self._dropped: np.ndarray | None = None  # targets the global layer gave up on (bool, whole map)
@@ -200,6 +205,9 @@ class WindowedPlanner:
         self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
     ) -> int | None:
         if self.fits(maps) and self.window is None:
+            if self._fit_grid is not None and self._fit_grid != maps.low_grid:  # maps that grew and still fit
+                self.local.remember(self._whole_memory(maps.low_grid))
+            self._fit_grid = maps.low_grid
             return self.local.act(maps, pose, previous_action, fused_low)
         moved = self._follow(maps, pose)
         if self.route is None or moved:
@@ -248,7 +256,7 @@ class WindowedPlanner:
         moves with it."""
         grid = maps.low_grid
         if self._grid is None:  # the maps outgrew the window: what the planner remembered of them whole carries on
-            self._memory = {k: v.copy() for k, v in self.local.memory().items() if v.shape == grid.shape}
+            self._memory = self._whole_memory(grid)
             self._grid = grid
         elif self._grid != grid:  # maps that grew: the whole-map memory follows the new grid, the route ends
             self._park()
@@ -272,6 +280,14 @@ class WindowedPlanner:
         if self.route is not None:
             self._lead(self.route, onward_only=True)
         return True
+
+    def _whole_memory(self, grid: GridSpec) -> dict[str, np.ndarray]:
+        """The local planner's memory of the maps it saw whole (on :attr:`_fit_grid`), moved onto ``grid`` (maps
+        that grew keep their cells where they were in metres)."""
+        old = self._fit_grid
+        if old is None:
+            return {}
+        return {k: moved_mask(v, old, grid) for k, v in self.local.memory().items() if v.shape == old.shape}
 
     def _park(self) -> None:
         """Write the local planner's memory (on the current window) into the whole-map memory."""

@@ -150,6 +150,40 @@ def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
     assert np.hypot(*np.diff(path, axis=0).T).sum() > 40.0  # round the wall's open end and back
 
 
+def grown(maps: ObservedMaps, before: tuple[int, int], after: tuple[int, int]) -> ObservedMaps:
+    """``maps`` on a grid grown by ``before`` 0.20 m cells (rows, cols) before its origin and ``after`` past its
+    end, UNKNOWN there: the daemon's growing maps (edge_explorer.mapping.growing)."""
+    (r0, c0), (r1, c1), f = before, after, maps.factor
+    low = np.pad(maps.low, ((r0, r1), (c0, c1)), constant_values=UNKNOWN)
+    high = np.pad(maps.high, ((r0 * f, r1 * f), (c0 * f, c1 * f)), constant_values=UNKNOWN)
+    (x0, y0), r = maps.low_grid.origin_xy, maps.low_grid.resolution_m
+    low_grid = GridSpec((x0 - c0 * r, y0 - r0 * r), r, low.shape)
+    return ObservedMaps(GridSpec(low_grid.origin_xy, maps.high_grid.resolution_m, high.shape), low_grid, high, low)
+
+
+@pytest.mark.parametrize("after", [(5, 5), (10, 120)], ids=["still-fits", "outgrows-the-window"])
+def test_maps_that_grow_move_the_planners_memory_and_it_replans(rooms, after):
+    maps = observed_up_to(rooms, 2.6)  # the east room's far half unseen: a frontier to fly to
+    planner = build_planner("frontier")
+    planner.reset()
+    pose = (1.0, 1.5, 0.0)
+    assert planner.act(maps, pose, 0) is not None
+    dropped = np.zeros(maps.low.shape, dtype=bool)
+    dropped[5, 3] = True
+    planner.local.remember({"dropped": dropped})
+    assert planner.act(maps, pose, 0) is not None
+    replans = planner.local.replans
+    assert planner.act(maps, pose, 0) is not None and planner.local.replans == replans  # the goal holds …
+    bigger = grown(maps, (3, 4), after)
+    assert planner.act(bigger, pose, 0) is not None
+    assert planner.local.replans == replans + 1  # … until the grid changes: its cells were indices on the old one
+    if planner.window is not None:
+        planner._park()
+    memory = planner.local.memory() if planner.window is None else planner._memory
+    x, y = maps.low_grid.center_of(5, 3)
+    assert memory["dropped"].sum() == 1 and memory["dropped"][bigger.low_grid.cell_of(x, y)]  # same place, metres
+
+
 @pytest.mark.slow
 def test_the_hierarchy_explores_a_corridor_longer_than_its_window():
     raster = rasterize(corridor_plan(60.0), 0.05)

@@ -122,7 +122,6 @@ class DecisionPipeline:
         self._previous_action = int(Action.HOVER)
         self._frontier_retries = 0
         self._candidate_s = 0.0
-        self._grid: GridSpec | None = None  # the maps' grid at the last decision
 
     @property
     def planner_name(self) -> str:
@@ -166,9 +165,6 @@ class DecisionPipeline:
         pose = (float(start_state.position[0]), float(start_state.position[1]), float(start_state.position[3]))
         with timed("project"):
             high, high_grid, low, low_grid = self.maps.project(cfg.band)
-        if self._grid is not None and high_grid != self._grid:
-            self.planner.reset()  # the maps grew: its goals are cell indices on the old grid
-        self._grid = high_grid
         maps = ObservedMaps(high_grid, low_grid, high, low)
         low_cell = _cell(low_grid, pose)
         # The prediction feeds the goal planner's fused map and the coverage count. When Nearest Frontier decides
