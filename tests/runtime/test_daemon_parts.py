@@ -464,3 +464,34 @@ def test_the_daemons_maps_are_not_sized_from_the_plan():
     high, grid, _, _ = maps.project(CONFIG.band)
     assert high[grid.cell_of(60.0, -4.1)] == FREE
 
+
+def test_the_safety_check_on_the_window_around_the_vehicle_answers_as_on_the_whole_map():
+    """The decision pipeline checks waypoints on a square of the maps around the vehicle (their cost must not grow
+    with maps that grow with the flight): every motion it judges, it judges as the whole map would."""
+    from edge_explorer.mapping.observed import coarsen_codes
+    from edge_explorer.plan.follow import FreeSpace
+    from edge_explorer.plan.waypoint import WaypointPlanner
+    from edge_explorer.plan.window import crop_maps, place_window
+    from edge_explorer.world.grid import OCCUPIED, UNKNOWN
+
+    rng = np.random.default_rng(0)
+    high = np.full((600, 600), FREE, dtype=np.int8)  # 30 m × 30 m: walls, pillars and unseen patches
+    for _ in range(120):
+        r, c, h, w = rng.integers(0, 600, 2).tolist() + rng.integers(1, 30, 2).tolist()
+        high[r : r + h, c : c + w] = OCCUPIED if rng.random() < 0.6 else UNKNOWN
+    grid = GridSpec((-3.0, 2.0), 0.05, high.shape)
+    maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
+    table = load_action_table()
+    whole = WaypointPlanner(table, FreeSpace.from_codes(high, grid), CONFIG.follow.safe_distance_m)
+    judged = 0
+    for x, y in rng.uniform((-2.5, 2.5), (26.5, 31.5), (40, 2)):
+        near = crop_maps(maps, place_window(maps.low_grid, (x, y), decisions_module._SAFETY_WINDOW_M))
+        cropped = WaypointPlanner(table, FreeSpace.from_codes(near.high, near.high_grid), whole.safe_distance_m)
+        for yaw in (0.0, 2.0, 4.0):
+            start = (x + 0.3, y - 0.3, yaw)  # the step starts at the reference, off the odometry position
+            for previous in Action:
+                for action in Action:
+                    safe = whole.is_safe((x, y), start, previous, action)
+                    assert cropped.is_safe((x, y), start, previous, action) == safe
+                    judged += safe
+    assert judged > 100  # safe and unsafe motions both judged

@@ -42,6 +42,7 @@ from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.registry import build_planner
 from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import WaypointPlanner
+from edge_explorer.plan.window import crop_maps, place_window
 from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.predict.thresholding import thresholded_map
 from edge_explorer.runtime.daemon.config import DaemonConfig
@@ -56,6 +57,10 @@ from edge_explorer.vehicle.dynamics import Action, ActionTable
 from edge_explorer.world.grid import GridSpec
 
 log = logging.getLogger(__name__)
+# The safety check's map: a square of this side around the vehicle. A step and its braking drift end within ~1.5 m of
+# it, and the check reads only cells within ``safe_distance_m`` of that motion and clearances below it, so it answers
+# on this crop exactly as on the whole map, at a cost that does not grow with the maps (they grow with the flight).
+_SAFETY_WINDOW_M = 8.0
 
 
 @dataclass(frozen=True)
@@ -183,7 +188,10 @@ class DecisionPipeline:
             )
         self._candidate_s = 0.0
         start = time.perf_counter()
-        planner = WaypointPlanner(self.table, FreeSpace.from_codes(high, high_grid), cfg.follow.safe_distance_m)
+        near = crop_maps(maps, place_window(low_grid, (odometry.x_m, odometry.y_m), _SAFETY_WINDOW_M))
+        planner = WaypointPlanner(
+            self.table, FreeSpace.from_codes(near.high, near.high_grid), cfg.follow.safe_distance_m
+        )
         candidates = self._candidates(maps, pose, thresholded)
         waypoint = planner.first_safe((odometry.x_m, odometry.y_m), pose, self._previous_action, candidates)
         end = TrajectoryState(
