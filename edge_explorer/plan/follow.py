@@ -52,6 +52,9 @@ from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
 Pose = tuple[float, float, float]  # (x_m, y_m, yaw_rad) in the map frame
 _BAND_EPS_M = 1e-6  # the NON_FLIGHT band holds the cells *within* the robot radius of an obstacle
 _DIRECTIONS = np.array([(math.cos(a), math.sin(a)) for a in np.linspace(0.0, 2 * math.pi, 8, endpoint=False)])
+# FreeSpace measures distances only over the known cells' box grown by this ring (see FreeSpace.from_codes); more
+# than any clearance a planner compares with (GraphConfig.clearance_soft_m, 0.6 m, is the largest).
+_EXACT_RING_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -106,13 +109,28 @@ class FreeSpace:
     @classmethod
     def from_codes(cls, codes: np.ndarray, grid: GridSpec) -> FreeSpace:
         """Distances as :func:`~edge_explorer.mapping.ego.inflate_codes` measures them (centre to centre), so
-        ``clearance_m <= radius`` is exactly its NON_FLIGHT band; an all-free map has infinite clearance."""
-        return cls(
-            grid,
-            codes == FREE,
-            centre_clearance_m(codes == OCCUPIED, grid.resolution_m),
-            centre_clearance_m(codes == UNKNOWN, grid.resolution_m),
-        )
+        ``clearance_m <= radius`` is exactly its NON_FLIGHT band; an all-free map has infinite clearance.
+
+        Both are measured over the box of the known cells grown by :data:`_EXACT_RING_M` only (maps that are mostly
+        unknown — a window on a floor, maps that grow with the flight — cost what their known part costs). Every
+        value in that box is exact: all OCCUPIED cells lie in it, and the unknown cell nearest to one of its cells
+        is never outside it (the ring is unknown, and clamping a cell outside onto the box brings it closer). Outside
+        it every cell is UNKNOWN (unseen clearance 0, exact) and farther than the ring from any obstacle: its
+        obstacle clearance reads inf, which no comparison with a distance below the ring tells from its true value."""
+        known = codes != UNKNOWN
+        clearance = np.full(codes.shape, np.inf, dtype=np.float32)
+        unseen = np.zeros(codes.shape, dtype=np.float32)
+        rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+        if rows.size:
+            ring = int(math.ceil(_EXACT_RING_M / grid.resolution_m))
+            box = (
+                slice(max(int(rows[0]) - ring, 0), int(rows[-1]) + 1 + ring),
+                slice(max(int(cols[0]) - ring, 0), int(cols[-1]) + 1 + ring),
+            )
+            part = codes[box]
+            clearance[box] = centre_clearance_m(part == OCCUPIED, grid.resolution_m)
+            unseen[box] = centre_clearance_m(part == UNKNOWN, grid.resolution_m)
+        return cls(grid, codes == FREE, clearance, unseen)
 
     def _at(self, values: np.ndarray, x_m: float, y_m: float) -> float:
         row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))

@@ -47,6 +47,34 @@ def test_clearance_is_the_inflation_band(rooms):
     np.testing.assert_array_equal((free.clearance_m <= 0.25 + 1e-6)[inside], (band == NON_FLIGHT)[inside])
 
 
+def test_free_space_measures_over_the_known_part_of_a_mostly_unknown_map():
+    """Distances are measured over the known cells' box and a 1 m ring only: exact there; beyond, every cell is
+    unknown, its unseen clearance 0 and its obstacle clearance above the ring (inf), as the whole map would say."""
+    from edge_explorer.world.flight_space import centre_clearance_m
+    from edge_explorer.world.grid import UNKNOWN
+
+    rng = np.random.default_rng(1)
+    codes = np.full((400, 500), UNKNOWN, dtype=np.int8)
+    codes[150:260, 120:300] = FREE
+    for _ in range(40):
+        r, c, h, w = int(rng.integers(140, 260)), int(rng.integers(110, 300)), *rng.integers(1, 12, 2).tolist()
+        codes[r : r + h, c : c + w] = OCCUPIED if rng.random() < 0.6 else UNKNOWN
+    grid = GridSpec((0.0, 0.0), 0.05, codes.shape)
+    free = FreeSpace.from_codes(codes, grid)
+    clearance = centre_clearance_m(codes == OCCUPIED, 0.05)
+    np.testing.assert_array_equal(free.unseen_clearance_m, centre_clearance_m(codes == UNKNOWN, 0.05))
+    known_box = (codes != UNKNOWN).any(axis=1).nonzero()[0], (codes != UNKNOWN).any(axis=0).nonzero()[0]
+    inside = np.zeros(codes.shape, dtype=bool)  # the known cells' box and the 1 m ring
+    inside[known_box[0][0] - 20 : known_box[0][-1] + 21, known_box[1][0] - 20 : known_box[1][-1] + 21] = True
+    np.testing.assert_array_equal(free.clearance_m[inside], clearance[inside])
+    assert (codes[~inside] == UNKNOWN).all() and np.isinf(free.clearance_m[~inside]).all()
+    assert clearance[~inside].min() > 1.0
+    everywhere_known = np.where(codes == UNKNOWN, FREE, codes)
+    np.testing.assert_array_equal(
+        FreeSpace.from_codes(everywhere_known, grid).clearance_m, centre_clearance_m(everywhere_known == OCCUPIED, 0.05)
+    )
+
+
 def test_follows_a_path_through_the_door(rooms, table):
     raster, free = rooms
     path = np.array([[1.0, 1.5], [2.0, 1.5], [3.0, 1.5]])  # west room → door (y 1..2 at x = 2) → east room
