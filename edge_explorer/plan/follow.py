@@ -113,10 +113,12 @@ class FreeSpace:
 
         Both are measured over the box of the known cells grown by :data:`_EXACT_RING_M` only (maps that are mostly
         unknown — a window on a floor, maps that grow with the flight — cost what their known part costs). Every
-        value in that box is exact: all OCCUPIED cells lie in it, and the unknown cell nearest to one of its cells
-        is never outside it (the ring is unknown, and clamping a cell outside onto the box brings it closer). Outside
-        it every cell is UNKNOWN (unseen clearance 0, exact) and farther than the ring from any obstacle: its
-        obstacle clearance reads inf, which no comparison with a distance below the ring tells from its true value."""
+        value in that box is the whole map's (to float rounding: opencv's transform differs by about 1e-7 m with the
+        array's size; A and C flew step for step as before): all OCCUPIED cells lie in it, and the unknown cell
+        nearest to one of its cells is never outside it (the ring is unknown, and clamping a cell outside onto the
+        box brings it closer). Outside it every cell is UNKNOWN (unseen clearance 0, exact) and farther than the
+        ring from any obstacle: its obstacle clearance reads inf, which no comparison with a distance below the ring
+        tells from its true value."""
         known = codes != UNKNOWN
         clearance = np.full(codes.shape, np.inf, dtype=np.float32)
         unseen = np.zeros(codes.shape, dtype=np.float32)
