@@ -129,6 +129,23 @@ def test_on_a_200_m_corridor_the_local_planner_sees_only_its_window_and_a_route_
     assert planner.routes >= 1
 
 
+def test_a_target_routed_to_four_times_is_dropped_for_the_next_nearest():
+    # the loop breaker: a window that moved back and forth once routed to the same target 500 times
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    maps = observed_up_to(raster, 190.0)
+    planner = build_planner("frontier")
+    planner.reset()
+    pose = (2.0, 1.5, 0.0)
+    planner.act(maps, pose, 0)  # the window takes over the maps
+    ends = []
+    for _ in range(5):
+        assert planner._new_route(maps, pose, None)
+        ends.append(set(planner.route.target_cells.tolist()))
+    assert ends[0] == ends[1] == ends[2] == ends[3]
+    assert not ends[4] & ends[0]  # the fifth goes to other cells of the far frontier
+    assert planner.route.path_xy_m[-1, 0] > 188.0
+
+
 def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
     # two corridors side by side, split by a 0.1 m wall open at its east end: the point lies across the wall from
     # the vehicle, so the transit must fly round (it once flew to the near side, 1 m away, and back)
