@@ -129,7 +129,8 @@ def _explore(args: argparse.Namespace) -> int:
         args.markdown.write_text(table)
     panels = figure_panels(records, methods)
     if args.plot is not None:
-        title = f"coverage vs path length — {args.plans}, {args.runs} run(s) per building, seed {args.seed}"
+        plans = args.plans if len(args.plans) <= 40 else f"{len(rasters)} buildings"  # a long list outruns the figure
+        title = f"coverage vs path length — {plans}, {args.runs} run(s) per building, seed {args.seed}"
         plot_curves(panels, args.plot, config.coverage_goal, title)
     write_json(
         args.json,
