@@ -87,6 +87,7 @@ def _group_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
             f"{b:g}": _stats([a for r in records if (a := correct_area_at_m2(r, b)) is not None]) for b in BUDGETS_M
         },
         "planner_ms_per_step": 1e3 * sum(r["planner_s"] for r in records) / max(sum(r["steps"] for r in records), 1),
+        "wall_s": _stats([r["wall_s"] for r in records if "wall_s" in r]),
     }
 
 
@@ -194,12 +195,13 @@ def _fmt_stats(s: dict[str, float | None]) -> str:
 
 def markdown_table(summary: dict[str, Any], methods: Sequence[str], per_plan: bool = True) -> str:
     """Table I: per building (and over all runs) and method, path length at 95 % coverage and at 90 % / 95 % correct
-    coverage."""
+    coverage; with the planner's time per step and each run's wall time (whole floors must stay cheap to plan)."""
     lines = [
         "| building | method | path at 95 % coverage (m) min / max / avg / std | reached | "
         "path at 90 % correct coverage (m) min / max / avg / std | reached | "
-        "path at 95 % correct coverage (m) min / max / avg / std | reached | success | collisions | steps avg |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "path at 95 % correct coverage (m) min / max / avg / std | reached | success | collisions | steps avg | "
+        "planning (ms / step) | wall (s / run) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     groups = [*summary["plans"].items()] if per_plan else []
     if len(summary["plans"]) > 1 or not per_plan:
@@ -207,11 +209,13 @@ def markdown_table(summary: dict[str, Any], methods: Sequence[str], per_plan: bo
     for plan, by_method in groups:
         for m in methods:
             s = by_method[m]
+            wall = s["wall_s"]["avg"]
             lines.append(
                 f"| {plan} | {m} | {_fmt_stats(s['path_at_coverage_m'])} | {s['reached_coverage']}/{s['runs']} | "
                 f"{_fmt_stats(s['path_at_correct_90_m'])} | {s['reached_correct_90']}/{s['runs']} | "
                 f"{_fmt_stats(s['path_at_correct_coverage_m'])} | {s['reached_correct_coverage']}/{s['runs']} | "
-                f"{100 * s['success_rate']:.0f} % | {s['collisions']} | {s['steps']['avg']:.0f} |"
+                f"{100 * s['success_rate']:.0f} % | {s['collisions']} | {s['steps']['avg']:.0f} | "
+                f"{s['planner_ms_per_step']:.1f} | {'–' if wall is None else f'{wall:.0f}'} |"
             )
     return "\n".join(lines) + "\n"
 

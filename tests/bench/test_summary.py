@@ -26,6 +26,7 @@ def fake_record(plan, method, run, path_at, collisions=0, steps=10):
         "path_at_coverage_m": path_at,
         "path_at_correct_coverage_m": None,
         "planner_s": 0.01,
+        "wall_s": 0.5,
         "curves": {"coverage": [0.1, 0.5, 0.96], "correct_coverage": [0.1, 0.4, 0.9], "path_length_m": [0, 1, 2]},
     }
 
@@ -45,6 +46,7 @@ def test_summary_is_table_one():
     assert summary["all"]["frontier"]["path_at_coverage_m"]["avg"] == pytest.approx(44 / 3)
     table = markdown_table(summary, ["frontier"])
     assert "| A | frontier | 10.0 / 14.0 / 12.0 / 2.0 | 2/3 |" in table and "all (2 plans)" in table
+    assert "| 10 | 1.0 | 0 |" in table  # steps, planning 10 ms over 10 steps, a 0.5 s run
     assert [f["run"] for f in failures(records)] == [1, 2]
 
 
