@@ -49,7 +49,7 @@ def test_clearance_is_the_inflation_band(rooms):
 
 def test_free_space_measures_over_the_known_part_of_a_mostly_unknown_map():
     """Distances are measured over the known cells' box and a 1 m ring only: the whole map's there (to float
-    rounding: opencv's distance transform differs by 1e-7 m with the array's size); beyond, every cell is unknown,
+    rounding: opencv's distance transform differs by up to 2e-6 m with the array's size); beyond, every cell is unknown,
     its unseen clearance 0 and its obstacle clearance above the ring (inf), as the whole map would say."""
     from edge_explorer.world.flight_space import centre_clearance_m
     from edge_explorer.world.grid import UNKNOWN
@@ -63,16 +63,18 @@ def test_free_space_measures_over_the_known_part_of_a_mostly_unknown_map():
     grid = GridSpec((0.0, 0.0), 0.05, codes.shape)
     free = FreeSpace.from_codes(codes, grid)
     clearance = centre_clearance_m(codes == OCCUPIED, 0.05)
-    np.testing.assert_allclose(free.unseen_clearance_m, centre_clearance_m(codes == UNKNOWN, 0.05), atol=1e-6)
+    np.testing.assert_allclose(free.unseen_clearance_m, centre_clearance_m(codes == UNKNOWN, 0.05), atol=1e-5)
     known_box = (codes != UNKNOWN).any(axis=1).nonzero()[0], (codes != UNKNOWN).any(axis=0).nonzero()[0]
     inside = np.zeros(codes.shape, dtype=bool)  # the known cells' box and the 1 m ring
     inside[known_box[0][0] - 20 : known_box[0][-1] + 21, known_box[1][0] - 20 : known_box[1][-1] + 21] = True
-    np.testing.assert_allclose(free.clearance_m[inside], clearance[inside], atol=1e-6)
+    np.testing.assert_allclose(free.clearance_m[inside], clearance[inside], atol=1e-5)
     assert (codes[~inside] == UNKNOWN).all() and np.isinf(free.clearance_m[~inside]).all()
     assert clearance[~inside].min() > 1.0
     everywhere_known = np.where(codes == UNKNOWN, FREE, codes)
-    np.testing.assert_array_equal(
-        FreeSpace.from_codes(everywhere_known, grid).clearance_m, centre_clearance_m(everywhere_known == OCCUPIED, 0.05)
+    np.testing.assert_allclose(
+        FreeSpace.from_codes(everywhere_known, grid).clearance_m,
+        centre_clearance_m(everywhere_known == OCCUPIED, 0.05),
+        atol=1e-5,
     )
 
 
