@@ -6,7 +6,9 @@ import pytest
 from edge_explorer.predict.thresholding import (
     MAX_PLAN_AREA_M2,
     ThresholdConfig,
+    beyond_envelope,
     free_threshold,
+    observed_extent_m,
     threshold_probabilities,
     thresholded_map,
 )
@@ -42,8 +44,41 @@ def test_observed_cells_override_the_prediction():
         thresholded_map(np.zeros(3), observed, 0.0)
 
 
+def _corridor(length_cells: int, width_cells: int) -> np.ndarray:
+    """A 0.20 m map: an observed free corridor of the given size along the top rows, UNKNOWN elsewhere."""
+    codes = np.full((80, 160), UNKNOWN, dtype=CELL_DTYPE)
+    codes[:width_cells, :length_cells] = FREE
+    return codes
+
+
+def test_observed_extent_is_the_bounding_box_of_the_observed_cells():
+    assert observed_extent_m(np.full((5, 5), UNKNOWN, dtype=CELL_DTYPE)) == (0.0, 0.0)
+    assert observed_extent_m(_corridor(100, 10)) == pytest.approx((20.0, 2.0))
+    assert observed_extent_m(_corridor(10, 40)) == pytest.approx((8.0, 2.0))  # long, short whatever the axis
+    assert observed_extent_m(_corridor(100, 10), resolution_m=0.05) == pytest.approx((5.0, 0.5))
+
+
+def test_no_cell_is_predicted_occupied_beyond_the_training_envelope():
+    p = np.full((80, 160), 0.99)  # the predictor paints everything unseen solid
+    inside = _corridor(110, 60)  # 22 × 12 m: within 21 × 11 m + 2 m
+    assert not beyond_envelope(inside, ThresholdConfig())
+    assert (thresholded_map(p, inside, 1000.0)[inside == UNKNOWN] == OCCUPIED).all()
+    for beyond in (_corridor(120, 10), _corridor(75, 70)):  # 24 m long; 15 × 14 m: 14 m on the short side
+        assert beyond_envelope(beyond, ThresholdConfig())
+        fused = thresholded_map(p, beyond, 1000.0)
+        assert (fused[beyond == UNKNOWN] == UNKNOWN).all()
+        np.testing.assert_array_equal(fused[beyond != UNKNOWN], FREE)  # observed cells keep their state
+    # predicted FREE cells stay: only the walls the predictor invents are dropped
+    low = np.full((80, 160), 0.0)
+    assert (thresholded_map(low, _corridor(120, 10), 1000.0)[_corridor(120, 10) == UNKNOWN] == FREE).all()
+    # a predictor trained on larger buildings widens its envelope
+    assert not beyond_envelope(_corridor(120, 10), ThresholdConfig(envelope_m=(30.0, 20.0)))
+
+
 def test_config_is_validated():
     with pytest.raises(ValueError):
         ThresholdConfig(t_f_max=0.5, t_o=0.4)
     with pytest.raises(ValueError):
         ThresholdConfig(max_plan_area_m2=0.0)
+    with pytest.raises(ValueError):
+        ThresholdConfig(envelope_m=(10.0, 20.0))
