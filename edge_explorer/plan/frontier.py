@@ -179,6 +179,11 @@ class GoalPlanner:
     def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def on_whole_floor(self) -> None:
+        """Called by the planning hierarchy (:mod:`edge_explorer.plan.window`) when the maps outgrow its window, so
+        a planner tuned on small buildings can take its whole-floor settings for the rest of the flight (until
+        :meth:`reset`). The frontier planners have none."""
+
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """This step's free space, traversable cells and frontier (less the dropped targets). The frontier planners
         target the observed map's frontier and ignore ``fused_low``; a predictive planner overrides this."""

@@ -24,6 +24,7 @@ same decisions (:func:`expert_label`) for behaviour cloning.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -245,6 +246,18 @@ class GoalPolicyPlanner(PredictiveFrontier):
     ) -> None:
         super().__init__(config, table)
         self.policy = policy
+        self.settings = config  # the goal choice's settings: ``config``, or its whole-floor variant
+
+    def reset(self) -> None:
+        super().reset()
+        self.settings = self.predictive
+
+    def on_whole_floor(self) -> None:
+        """On a whole floor every valid goal may be flown, not only those worth a look
+        (:attr:`PredictiveConfig.whole_floor_min_gain_cells`)."""
+        self.settings = dataclasses.replace(
+            self.predictive, min_gain_cells=self.predictive.whole_floor_min_gain_cells
+        )
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         fused = self.fused if self.fused is not None else view.maps.low
@@ -252,6 +265,6 @@ class GoalPolicyPlanner(PredictiveFrontier):
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
         scores = weighted_scores(
-            self.policy(decision.observation), decision.options, self.predictive.policy_cost_weight_per_m
+            self.policy(decision.observation), decision.options, self.settings.policy_cost_weight_per_m
         )
-        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.predictive))
+        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.settings))

@@ -23,6 +23,11 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
 
 The flight ends when neither layer has a target left.
 
+**Whole-floor settings.** Once the observed cells span more than ``whole_floor_m`` (the 23 × 13 m envelope of
+the buildings the planners were tuned on; the flight's own evidence, never the plan), the local planner is told so
+(:meth:`GoalPlanner.on_whole_floor`) and takes its whole-floor settings for the rest of the flight; no building
+that fits the envelope can trigger it.
+
 **Maps that grow** (the daemon's, :mod:`edge_explorer.mapping.growing`) change their grid now and then, whether they
 fit the window or not: the planner's memory on the grid moves with it (cells keep their place in metres), its goal,
 whose target cells are indices on the old grid, is forgotten (it replans), and a route ends.
@@ -40,6 +45,7 @@ from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, nearest_frontier_goal
 from edge_explorer.plan.route import Route, RouteConfig, nearest_route, via_index
+from edge_explorer.predict.thresholding import ENVELOPE_M, observed_extent_m
 from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.grid import GridSpec
 
@@ -56,6 +62,9 @@ class WindowConfig:
     recentre_m: float = 4.0  # the window moves when the vehicle is this far from where it would centre it
     transit_margin_m: float = 2.0  # a route is followed to its last point this far inside the window's edge
     route: RouteConfig = RouteConfig()
+    # (long, short) sides: once the observed cells span more, the building is larger than any the planners were
+    # tuned on (the predictor's 21 × 11 m envelope + 2 m) and the local planner takes its whole-floor settings
+    whole_floor_m: tuple[float, float] = ENVELOPE_M
 
     def __post_init__(self) -> None:
         if self.size_m <= 0 or not 0 < self.recentre_m < self.size_m / 2:
@@ -186,6 +195,7 @@ class WindowedPlanner:
         self._dropped: np.ndarray | None = None  # targets the global layer gave up on (bool, whole map)
         self._routed: np.ndarray | None = None  # how often each cell was a route's target (uint8, whole map)
         self.route: Route | None = None
+        self.whole_floor = False  # the observed cells have spanned more than ``whole_floor_m`` this flight
         self._via = -1  # the index along the route of the transit's point
         self._failed_routes = 0
         self.routes = 0  # global decisions this flight
@@ -204,6 +214,11 @@ class WindowedPlanner:
     def act(
         self, maps: ObservedMaps, pose: Pose, previous_action: int, fused_low: np.ndarray | None = None
     ) -> int | None:
+        if not self.whole_floor:
+            long_m, short_m = observed_extent_m(maps.low, maps.low_grid.resolution_m)
+            if long_m > self.config.whole_floor_m[0] or short_m > self.config.whole_floor_m[1]:
+                self.whole_floor = True
+                self.local.on_whole_floor()
         if self.fits(maps) and self.window is None:
             if self._fit_grid is not None and self._fit_grid != maps.low_grid:  # maps that grew and still fit
                 self.local.remember(self._whole_memory(maps.low_grid))

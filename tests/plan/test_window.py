@@ -129,6 +129,40 @@ def test_on_a_200_m_corridor_the_local_planner_sees_only_its_window_and_a_route_
     assert planner.routes >= 1
 
 
+class _Recording(NearestFrontier):
+    """Nearest Frontier that counts the hierarchy's whole-floor calls."""
+
+    whole_floor_calls = 0
+
+    def on_whole_floor(self) -> None:
+        self.whole_floor_calls += 1
+
+
+def test_the_local_planner_is_told_once_when_the_observed_cells_outspan_the_envelope():
+    raster = rasterize(corridor_plan(60.0), 0.05)
+    for seen_to_m, told in ((20.0, 0), (22.0, 0), (30.0, 1)):  # the envelope is 23 m long (and 13 m wide)
+        local = _Recording()
+        planner = WindowedPlanner(local)
+        planner.reset()
+        for _ in range(3):
+            planner.act(observed_up_to(raster, seen_to_m), (2.0, 1.5, 0.0), 0)
+        assert (local.whole_floor_calls, planner.whole_floor) == (told, told == 1)
+    planner.reset()
+    assert not planner.whole_floor  # a new flight starts with the small-building settings
+
+
+def test_the_learned_planner_flies_every_valid_goal_on_a_whole_floor():
+    from edge_explorer.plan.goal_policy import GoalPolicyPlanner
+    from edge_explorer.plan.predictive import PredictiveConfig
+
+    learned = GoalPolicyPlanner(lambda observation: None, PredictiveConfig(min_gain_cells=30))  # type: ignore[arg-type]
+    assert learned.settings.min_gain_cells == 30
+    learned.on_whole_floor()
+    assert learned.settings.min_gain_cells == PredictiveConfig().whole_floor_min_gain_cells == 0
+    learned.reset()
+    assert learned.settings.min_gain_cells == 30
+
+
 def test_a_target_routed_to_four_times_is_dropped_for_the_next_nearest():
     # the loop breaker: a window that moved back and forth once routed to the same target 500 times
     raster = rasterize(corridor_plan(200.0), 0.05)
