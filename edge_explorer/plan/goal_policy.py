@@ -255,9 +255,7 @@ class GoalPolicyPlanner(PredictiveFrontier):
     def on_whole_floor(self) -> None:
         """On a whole floor every valid goal may be flown, not only those worth a look
         (:attr:`PredictiveConfig.whole_floor_min_gain_cells`)."""
-        self.settings = dataclasses.replace(
-            self.predictive, min_gain_cells=self.predictive.whole_floor_min_gain_cells
-        )
+        self.settings = dataclasses.replace(self.predictive, min_gain_cells=self.predictive.whole_floor_min_gain_cells)
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         fused = self.fused if self.fused is not None else view.maps.low

@@ -45,7 +45,7 @@ class Simulation(Protocol):
         """The depth renderer of ``raster``: its kernel is loaded with the flight's (``warm_kernels``)."""
         ...
 
-    def start_pose(self, plan: str, seed: int) -> tuple[float, float, float]: ...
+    def start_pose(self, raster: Any, seed: int) -> tuple[float, float, float]: ...
 
     def vehicle(self, raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any: ...
 
@@ -78,7 +78,7 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
                 raise ValueError("the simulated vehicle needs a plan")
             if simulation is None:
                 raise ValueError("without --connect the flight needs the simulated vehicle (edge_explorer.sim.flight)")
-            start = simulation.start_pose(options.plan, options.seed)
+            start = simulation.start_pose(raster, options.seed)
         if raster is not None:
             # Before the flight's other imports: the flight's numba kernels compiled in a child (on a fresh install)
             # and loaded here, then LLVM's pages handed back (runtime/kernels.py).

@@ -10,7 +10,6 @@ pages before its heavier imports (pymavlink, the renderer; :mod:`edge_explorer.r
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 
@@ -29,8 +28,8 @@ class SimulatedFlight:
 
         return THREAD_NAME
 
-    def start_pose(self, plan: str, seed: int) -> tuple[float, float, float]:
-        return _start_pose(plan, seed)
+    def start_pose(self, raster: Any, seed: int) -> tuple[float, float, float]:
+        return _start_pose(raster, seed)
 
     def vehicle(self, raster: Any, start: tuple[float, float, float], noise_seed: int, flavour: str) -> Any:
         return _simulated_vehicle(raster, start, noise_seed, flavour)
@@ -46,41 +45,28 @@ class SimulatedFlight:
         return SimulatedDepthSource(camera, vehicle, rate_hz=rate_hz, seed=noise_seed)
 
 
-def _start_pose(plan: str, seed: int) -> tuple[float, float, float]:
-    """The exploration benchmark's start pose on ``plan`` (:func:`edge_explorer.sim.starts.start_pose`), drawn in
-    a new interpreter with numba's JIT off. The draw builds the training simulator (~50 MB) and resets it, which
-    would compile a dozen numba kernels (LLVM's code and working memory: ~120 MB on a fresh install) whose results
-    the pose does not depend on: the pose is drawn from the seeded generator and checked against the plan's
-    clearance before the simulator's sensor runs. Interpreted, the draw takes ~0.4 s and ~180 MB, none of it in the
-    flight's process (tests/runtime/test_kernels.py checks the pose is the same)."""
+def _start_pose(raster: Any, seed: int) -> tuple[float, float, float]:
+    """The exploration benchmark's start pose on the building ``raster`` (the flight's, already loaded:
+    :func:`edge_explorer.sim.starts.start_pose`), drawn in a new interpreter. The draw builds the training simulator
+    (~50 MB) and resets it, which compiles a dozen numba kernels (LLVM's code and working memory: ~120 MB on a fresh
+    install) the flight never runs; none of that stays in the flight's process (tests/runtime/test_kernels.py checks
+    the pose is the benchmark's). Until session 43 the child ran with numba's JIT off to save the compile: the
+    kernels then ran interpreted, ~0.4 s on building A but more than 10 minutes on a 270 m KTH floor."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     spawn = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=1, mp_context=spawn, initializer=_numba_jit_off) as pool:
-        return pool.submit(_draw_start_pose, plan, seed).result()
+    with ProcessPoolExecutor(max_workers=1, mp_context=spawn) as pool:
+        return pool.submit(_draw_start_pose, raster, seed).result()
 
 
-def _numba_jit_off() -> None:
-    """In the start pose's interpreter, before numba's import: njit functions stay plain Python functions, and the
-    LLVM pages numba's import maps (~90 MB on a fresh install) are handed back at once, as nothing compiles."""
-    os.environ["NUMBA_DISABLE_JIT"] = "1"
-    import numba  # noqa: F401
-
-    from edge_explorer.runtime.kernels import release_llvm_pages
-
-    release_llvm_pages()
-
-
-def _draw_start_pose(plan: str, seed: int) -> tuple[float, float, float]:
-    """The start pose's child's work. Where numba's JIT is on (any caller but :func:`_start_pose`'s interpreter),
-    the flight's kernels run first (:func:`~edge_explorer.runtime.kernels.warm_kernels`, then LLVM's pages are
-    released), so that one call fills numba's cache for a whole flight."""
+def _draw_start_pose(raster: Any, seed: int) -> tuple[float, float, float]:
+    """The start pose's child's work. The flight's kernels run first (:func:`~edge_explorer.runtime.kernels.
+    warm_kernels`, then LLVM's pages are released), so that on a fresh install this one call fills numba's cache for
+    the whole flight and the flight's process only loads (unless numba's JIT is off). The child gets the flight's
+    raster, not the plan's name: loading a whole floor again (its flight space) costs as long as the parent's load."""
     import numba
 
-    from edge_explorer.world.catalog import load_building
-
-    raster = load_building(plan)
     if not numba.config.DISABLE_JIT:
         from edge_explorer.runtime.kernels import release_llvm_pages, warm_kernels
 

@@ -743,7 +743,10 @@ def test_the_start_pose_child_compiles_every_kernel_the_flight_runs(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache"), "NUMBA_DEBUG_CACHE": "1"}
     plan = tmp_path / "rooms.json"
     save_plan_json(two_room_plan(), plan)
-    child = f"from edge_explorer.sim.flight import _draw_start_pose; _draw_start_pose({str(plan)!r}, 0)"
+    child = (
+        "from edge_explorer.sim.flight import _draw_start_pose; from edge_explorer.world.catalog import load_building; "
+        f"_draw_start_pose(load_building({str(plan)!r}), 0)"
+    )
     warm = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=240, env=env)
     assert warm.returncode == 0, warm.stderr
     assert "data saved" in warm.stdout + warm.stderr  # the child compiled into the empty cache
