@@ -113,3 +113,16 @@ def test_observable_cells_stop_at_walls(tmp_path):
     seen = observable_cells(raster, only_left)
     assert seen[tuple(int(v) for v in raster.grid.cell_of(*_xy(raster, 10, 50)))]  # same room, in range
     assert not seen[tuple(int(v) for v in raster.grid.cell_of(*_xy(raster, 100, 5)))]  # behind the wall
+
+
+def test_view_points_cast_in_blocks_see_the_same_cells(tmp_path, monkeypatch):
+    # observable_cells casts its view points in blocks to bound its memory on whole floors: any block size sees the
+    # same cells as all view points at once
+    import edge_explorer.world.flight_space as flight_space
+
+    raster = load_map_server(_two_rooms(tmp_path, 20)).raster
+    reachable = reachable_cells(raster, FLIGHT_CLEARANCE)
+    monkeypatch.setattr(flight_space, "_SOURCES_PER_BLOCK", 10**9)
+    at_once = observable_cells(raster, reachable)
+    monkeypatch.setattr(flight_space, "_SOURCES_PER_BLOCK", 7)
+    assert np.array_equal(observable_cells(raster, reachable), at_once)
