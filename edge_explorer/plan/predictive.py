@@ -157,12 +157,26 @@ def open_unknown(observed_low: np.ndarray, fused_low: np.ndarray) -> np.ndarray:
     return np.isin(labels, open_labels[open_labels > 0])
 
 
-def view_window(viewpoint_xy_m: np.ndarray, grid: GridSpec, range_m: float) -> tuple[int, int, int, int]:
-    """(row0, row1, col0, col1): the square of ``grid`` cells (row0:row1, col0:col1) that :func:`visible_unknown`
-    scans from the viewpoint, clipped to the grid; its unknown cells bound what a view from there can show."""
-    row, col = (int(v) for v in grid.cell_of(*viewpoint_xy_m))
+def view_windows(
+    viewpoints_xy_m: np.ndarray, grid: GridSpec, range_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(row0, row1, col0, col1) arrays for (K, 2) viewpoints: the square of ``grid`` cells (row0:row1, col0:col1)
+    that :func:`visible_unknown` scans from each, clipped to the grid; its unknown cells bound what a view from
+    there can show."""
+    row, col = grid.cell_of(viewpoints_xy_m[:, 0], viewpoints_xy_m[:, 1])
     r = int(math.ceil(range_m / grid.resolution_m))
-    return max(row - r, 0), min(row + r + 1, grid.shape[0]), max(col - r, 0), min(col + r + 1, grid.shape[1])
+    return (
+        np.maximum(row - r, 0),
+        np.minimum(row + r + 1, grid.shape[0]),
+        np.maximum(col - r, 0),
+        np.minimum(col + r + 1, grid.shape[1]),
+    )
+
+
+def view_window(viewpoint_xy_m: np.ndarray, grid: GridSpec, range_m: float) -> tuple[int, int, int, int]:
+    """:func:`view_windows` of one viewpoint."""
+    r0, r1, c0, c1 = view_windows(np.asarray(viewpoint_xy_m, dtype=float).reshape(1, 2), grid, range_m)
+    return int(r0[0]), int(r1[0]), int(c0[0]), int(c1[0])
 
 
 def visible_unknown(
