@@ -495,3 +495,20 @@ def test_the_safety_check_on_the_window_around_the_vehicle_answers_as_on_the_who
                     assert cropped.is_safe((x, y), start, previous, action) == safe
                     judged += safe
     assert judged > 100  # safe and unsafe motions both judged
+
+
+def test_the_return_counts_as_home_only_when_it_ends_at_home(clock):
+    # a return that ends where the observed map leads no nearer home, or by its time limit, is no return home
+    from edge_explorer.mapping.observed import coarsen_codes
+
+    high = np.full((200, 200), FREE, dtype=np.int8)  # 10 m × 10 m, all seen free
+    high[:, 100:102] = 1  # a wall across it (OCCUPIED = 1): home lies behind it
+    grid = GridSpec((0.0, 0.0), 0.05, high.shape)
+    maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
+    # at home; at the wall's near side, the nearest the map leads to a home behind it
+    for xy, home, reached in (((2.0, 5.0), (2.0, 5.0), True), ((4.55, 4.95), (8.0, 5.0), False)):
+        phases, state, _ = _phases(FakeLink(Pose(10.0, *xy, 1.7, 0.0)), replace(CONFIG, return_home=True))
+        state.phase, state.home_xy = "exploring", home
+        phases.finish_exploring("time limit")
+        assert phases.home_action(maps, (*xy, 0.0), int(Action.HOVER)) is None  # nowhere nearer to go
+        assert (state.phase, state.reached_home) == ("home", reached)

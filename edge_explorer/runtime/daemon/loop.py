@@ -176,7 +176,7 @@ class Daemon:
             planner=self.decisions.planner_name,
             predictor=self.decisions.predictor is not None,
             exploration_s=self.phases.exploration_s(),
-            returned_home=self.state.phase in ("home", "done") and self.config.return_home,
+            returned_home=self.state.reached_home,
         )
 
     def _iterate(self) -> None:

@@ -39,6 +39,7 @@ from edge_explorer.vehicle.dynamics import ActionTable
 
 log = logging.getLogger(__name__)
 MAP_STOP_ENDING = "map says verified"  # the ending of an exploration the map stop rule ended (issue #56)
+HOME_REACHED_M = 1.0  # a return that ends this close to home reached it (the report's returned_home)
 
 
 class FlightPhases:
@@ -239,8 +240,14 @@ class FlightPhases:
         arrived = path is not None and action is None
         timed_out = time.monotonic() - self._explore_end_s > cfg.return_time_limit_s
         if arrived or timed_out:
+            off_m = math.dist(pose[:2], self.state.home_xy)
+            self.state.reached_home = arrived and off_m <= HOME_REACHED_M
             if timed_out and not arrived:
-                log.warning("no way home within %.0f s: hovering here", cfg.return_time_limit_s)
+                log.warning(
+                    "no way home within %.0f s, %.1f m from home: hovering here", cfg.return_time_limit_s, off_m
+                )
+            elif not self.state.reached_home:
+                log.warning("the observed map leads no nearer home than %.1f m: hovering here", off_m)
             else:
                 log.info("home: hovering for %.0f s", cfg.home_hover_s)
             self.state.phase = "home"

@@ -28,12 +28,15 @@ PHASES: tuple[str, ...] = ("takeoff", "exploring", "returning", "home", "done")
 class FlightState:
     """Where the flight stands. ``phase``: takeoff → exploring → returning → home → done; ``home_xy``: the take-off
     point (moved with the maps' frame after a pose jump); ``stop_reason``: set when the run must end at the next loop
-    iteration; ``ending``: why exploration (or the run) ended, for the report."""
+    iteration; ``ending``: why exploration (or the run) ended, for the report; ``reached_home``: the return ended
+    within :data:`~edge_explorer.runtime.daemon.phases.HOME_REACHED_M` of home (not by its time limit, nor at the
+    nearest point of the observed map that the vehicle could reach)."""
 
     phase: str = "takeoff"
     home_xy: tuple[float, float] | None = None
     stop_reason: str | None = None
     ending: str | None = None
+    reached_home: bool = False
 
     def move_home(self, dx_m: float, dy_m: float) -> None:
         """Home in a map frame shifted by (``dx_m``, ``dy_m``) (after an odometry jump); nothing before take-off."""
