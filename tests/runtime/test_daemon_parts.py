@@ -316,6 +316,32 @@ def test_the_flight_budget_keeps_the_way_home_in_reserve(clock):
     assert (state.phase, state.ending) == ("returning", "time limit")
 
 
+def test_the_reserve_follows_the_measured_path_home_round_a_wall(clock):
+    # home lies behind a wall with one gap at its far end: the way home is ~3 × the straight line, and the reserve,
+    # once the path home is measured, keeps that way (× home_path_slack), not the straight line × home_detour_factor
+    from edge_explorer.mapping.observed import coarsen_codes
+
+    high = np.full((200, 200), FREE, dtype=np.int8)  # 10 m × 10 m, all seen free
+    high[:180, 100:102] = 1  # a wall across x = 5 m from y = 0 to 9 m (OCCUPIED = 1): the gap is at the top
+    grid = GridSpec((0.0, 0.0), 0.05, high.shape)
+    maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
+    config = replace(CONFIG, return_home=True, time_limit_s=300.0)
+    phases, state, _ = _phases(FakeLink(Pose(10.0, 7.0, 1.0, 1.7, 0.0)), config)
+    state.phase, state.home_xy = "exploring", (3.0, 1.0)
+    cruise, fixed_s = 0.5, config.home_hover_s + config.home_reserve_margin_s
+    straight = np.hypot(4.0, 0.0)
+    assert phases.home_reserve_s((7.0, 1.0)) == pytest.approx(straight * 2.0 / cruise + fixed_s)  # not measured yet
+    phases.measure_way_home(maps, (7.0, 1.0), clock.now)
+    path_m = (phases.home_reserve_s((7.0, 1.0)) - fixed_s) * cruise / config.home_path_slack
+    assert 2 * np.hypot(2.0, 8.5) <= path_m <= 2 * np.hypot(2.0, 8.5) + 3.0  # up round the wall's end and down
+    # 1 m further on, before the next measurement: the path plus the straight line flown since
+    assert phases.home_reserve_s((7.0, 2.0)) == pytest.approx(
+        (path_m + 1.0) * config.home_path_slack / cruise + fixed_s
+    )
+    phases.measure_way_home(maps, (7.0, 2.0), clock.now + 1.0)  # too soon: the last measurement stays
+    assert phases.home_reserve_s((7.0, 1.0)) == pytest.approx(path_m * config.home_path_slack / cruise + fixed_s)
+
+
 # ---- the decision pipeline ---------------------------------------------------------------------------------------
 
 

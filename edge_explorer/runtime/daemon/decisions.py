@@ -209,6 +209,8 @@ class DecisionPipeline:
         if predict_after:
             thresholded = self.predict(maps, low_cell)
             self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase, self.probabilities)
+        if self.phases.phase == "exploring":  # the reserve's way home, off the frame-in → waypoint-out path
+            self.phases.measure_way_home(maps, (odometry.x_m, odometry.y_m), now)
         self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
         log.debug(
             "decision %d: %s %s → (%.2f, %.2f)",

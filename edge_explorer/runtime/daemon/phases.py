@@ -25,6 +25,8 @@ import logging
 import math
 import time
 
+import numpy as np
+
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import FreeSpace, choose_action
 from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
@@ -72,6 +74,8 @@ class FlightPhases:
         self._explore_end_s: float | None = None
         self._hold_reason: str | None = None
         self._hold_since_s = 0.0
+        self._way_home: tuple[float, tuple[float, float]] | None = None  # (path home m, measured from xy m)
+        self._way_home_s: float | None = None  # when it was measured
 
     @property
     def phase(self) -> str:
@@ -218,14 +222,39 @@ class FlightPhases:
             self.finish_exploring("time limit")
 
     def home_reserve_s(self, xy_m: tuple[float, float] | None) -> float:
-        """The time kept in the flight budget to fly home from ``xy_m``: the straight line × ``home_detour_factor``
-        at cruise speed, the hover at home and a margin (none without a return home)."""
+        """The time kept in the flight budget to fly home from ``xy_m`` at cruise speed, plus the hover at home and a
+        margin (none without a return home). The way home is the last measured path home (:meth:`measure_way_home`)
+        plus the straight line from where it was measured to ``xy_m``, × ``home_path_slack``; before the first
+        measurement, the straight line home × ``home_detour_factor``. Never less than the straight line."""
         cfg = self.config
         if not cfg.return_home or xy_m is None or self.state.home_xy is None:
             return 0.0
         cruise_m_s = self.table.model.forward_step_m / self.table.model.step_s
-        distance_m = math.dist(xy_m, self.state.home_xy)
-        return distance_m * cfg.home_detour_factor / cruise_m_s + cfg.home_hover_s + cfg.home_reserve_margin_s
+        straight_m = math.dist(xy_m, self.state.home_xy)
+        if self._way_home is None:
+            way_m = straight_m * cfg.home_detour_factor
+        else:
+            path_m, measured_at = self._way_home
+            way_m = max(straight_m, (path_m + math.dist(xy_m, measured_at)) * cfg.home_path_slack)
+        return way_m / cruise_m_s + cfg.home_hover_s + cfg.home_reserve_margin_s
+
+    def measure_way_home(self, maps: ObservedMaps, xy_m: tuple[float, float], now: float) -> None:
+        """Measure the path home from ``xy_m`` over the observed map — the path the return would fly now
+        (:func:`~edge_explorer.plan.waypoint.path_home`) — for the reserve, at most every ``home_path_every_s``
+        (about 0.2 s on a 271 m floor, so it runs after the decision's waypoint is out). A path that ends short of
+        home counts the rest as a straight line; no path (the vehicle's cell has no way out) keeps the last one."""
+        cfg = self.config
+        if not cfg.return_home or self.state.home_xy is None:
+            return
+        if self._way_home_s is not None and now - self._way_home_s < cfg.home_path_every_s:
+            return
+        self._way_home_s = now
+        free = FreeSpace.from_codes(maps.high, maps.high_grid)
+        path = path_home(free, xy_m, self.state.home_xy, cfg.follow.safe_distance_m)
+        if path is None:
+            return
+        path_m = float(np.hypot(*np.diff(path, axis=0).T).sum()) + math.dist(path[-1], self.state.home_xy)
+        self._way_home = (path_m + math.dist(xy_m, path[0]), xy_m)
 
     def home_action(self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int) -> int | None:
         """The next action along a path home over observed free space (after action ``previous``); None (and
