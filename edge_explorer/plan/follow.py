@@ -144,6 +144,10 @@ class FreeSpace:
         """Clearance of the cell holding (x_m, y_m); 0 off the grid."""
         return self._at(self.clearance_m, x_m, y_m)
 
+    def unseen_clearance_at(self, x_m: float, y_m: float) -> float:
+        """Distance from the cell holding (x_m, y_m) to the nearest UNKNOWN cell; 0 off the grid."""
+        return self._at(self.unseen_clearance_m, x_m, y_m)
+
     def unsafe_mask(self, x_m: float, y_m: float, safe_distance_m: float, unseen_distance_m: float = 0.0) -> np.ndarray:
         """Cells a motion from (x_m, y_m) may not enter: unknown or occupied, or closer to an obstacle than
         ``safe_distance_m`` (to an unknown cell than ``unseen_distance_m``) — or, if the vehicle is already that

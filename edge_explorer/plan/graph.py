@@ -52,14 +52,25 @@ class Traversable:
 
     @classmethod
     def from_free_space(
-        cls, free: FreeSpace, safe_distance_m: float, pose_xy_m: tuple[float, float], factor: int
+        cls,
+        free: FreeSpace,
+        safe_distance_m: float,
+        pose_xy_m: tuple[float, float],
+        factor: int,
+        unseen_distance_m: float = 0.0,
     ) -> Traversable:
         """Conservative coarsening of ``free`` (see the module docstring). Around the vehicle the follower's escape
         rule applies: if it stands closer to an obstacle than ``safe_distance_m``, cells as close as it is count too,
-        so a path out exists; its own cell is always included."""
+        so a path out exists; its own cell is always included. With ``unseen_distance_m`` > 0 a cell must also keep
+        that far from every UNKNOWN cell — no farther than the vehicle is now — the follower's unseen rule
+        (:meth:`~edge_explorer.plan.follow.FreeSpace.unsafe_mask`), so a path leads only where the follower flies."""
         grid = free.grid.coarsened(factor)
-        mask, clearance = planning_cells(free.known_free, free.clearance_m, safe_distance_m, factor)
-        known_free = block_reduce(free.known_free, factor, np.logical_and, False)
+        flyable = free.known_free
+        if unseen_distance_m > 0:
+            here_unseen_m = free.unseen_clearance_at(*pose_xy_m)
+            flyable = flyable & (free.unseen_clearance_m >= min(unseen_distance_m, here_unseen_m))
+        mask, clearance = planning_cells(flyable, free.clearance_m, safe_distance_m, factor)
+        known_free = block_reduce(flyable, factor, np.logical_and, False)
         row, col = (int(v) for v in grid.cell_of(*pose_xy_m))
         if 0 <= row < grid.shape[0] and 0 <= col < grid.shape[1]:
             here_m = free.clearance_at(*pose_xy_m)
@@ -88,10 +99,16 @@ class PlanningGraph:
 
     @classmethod
     def build(
-        cls, free: FreeSpace, safe_distance_m: float, pose_xy_m: tuple[float, float], config: GraphConfig
+        cls,
+        free: FreeSpace,
+        safe_distance_m: float,
+        pose_xy_m: tuple[float, float],
+        config: GraphConfig,
+        unseen_distance_m: float = 0.0,
     ) -> PlanningGraph:
-        """The graph of ``free`` (see the module docstring); the cell holding ``pose_xy_m`` is always a node."""
-        traversable = Traversable.from_free_space(free, safe_distance_m, pose_xy_m, config.factor)
+        """The graph of ``free`` (see the module docstring); the cell holding ``pose_xy_m`` is always a node;
+        ``unseen_distance_m``: see :meth:`Traversable.from_free_space`."""
+        traversable = Traversable.from_free_space(free, safe_distance_m, pose_xy_m, config.factor, unseen_distance_m)
         return cls.from_traversable(traversable, config)
 
     @classmethod

@@ -131,11 +131,19 @@ def hold_waypoint(pose: Pose) -> Waypoint:
 
 
 def path_home(
-    free: FreeSpace, from_xy_m: tuple[float, float], home_xy_m: tuple[float, float], safe_distance_m: float
+    free: FreeSpace,
+    from_xy_m: tuple[float, float],
+    home_xy_m: tuple[float, float],
+    safe_distance_m: float,
+    unseen_distance_m: float = FollowConfig().unseen_clearance_m,
 ) -> np.ndarray | None:
     """(K, 2) path from ``from_xy_m`` to the reachable planning cell nearest ``home_xy_m``, through observed free
-    space at least ``safe_distance_m`` from obstacles; ``None`` if the vehicle's own cell has no way out."""
-    graph = PlanningGraph.build(free, safe_distance_m, from_xy_m, GraphConfig())
+    space at least ``safe_distance_m`` from obstacles and ``unseen_distance_m`` from unknown cells — the follower's
+    own rules, so that :func:`~edge_explorer.plan.follow.choose_action` can fly it: a path grazing a small unseen
+    patch in the middle of a corridor put the pursuit target behind a patch the follower will not cross, and hover
+    won (the whole-floor daemon flight of session 43 hovered there until its return time ran out). ``None`` if the
+    vehicle's own cell has no way out."""
+    graph = PlanningGraph.build(free, safe_distance_m, from_xy_m, GraphConfig(), unseen_distance_m)
     start = graph.node_at(*from_xy_m)
     if start < 0:
         return None

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from edge_explorer.mapping import ego
-from edge_explorer.plan.follow import FollowConfig, FreeSpace
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, choose_action
 from edge_explorer.plan.waypoint import HOLD, WaypointPlanner, action_pose, cruise_velocity, path_home
 from edge_explorer.vehicle import dynamics
-from edge_explorer.vehicle.dynamics import Action, load_action_table
+from edge_explorer.vehicle.dynamics import Action, body_to_map, load_action_table
 from edge_explorer.world.grid import CELL_DTYPE, FREE, NON_FLIGHT, OCCUPIED, UNKNOWN, GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
@@ -142,3 +142,37 @@ def test_path_home_goes_round_the_wall_through_the_door():
     crossing = path[np.argmin(np.abs(path[:, 0] - 2.0))]
     assert 1.0 < crossing[1] < 2.0  # through the door (y 1..2 at x = 2)
     assert all(free.clearance_at(*p) >= FollowConfig().safe_distance_m for p in path[1:])
+
+
+# The whole-floor daemon flight of session 43 hovered on its way home for 150 s: a small unseen patch in the middle
+# of a wide corridor, just ahead of the vehicle at rest; path_home grazed it (0.1 m off), closer than the follower's
+# unseen_clearance_m, so every moving two-action sequence cost more than hovering.
+CORRIDOR = GridSpec((0.0, 0.0), 0.05, (40, 120))  # 6 m × 2 m corridor, walls along y = 0 and y = 2
+CORRIDOR_HOME = (5.0, 1.1)
+CORRIDOR_START = (1.0, 0.95, math.radians(9.0))  # at rest, 0.35 m short of the patch, as the daemon was
+
+
+def corridor_with_patch() -> np.ndarray:
+    codes = np.full(CORRIDOR.shape, FREE, dtype=CELL_DTYPE)
+    codes[0, :] = codes[-1, :] = OCCUPIED
+    codes[19:22, 27:34] = UNKNOWN  # x 1.35–1.70 m, y 0.95–1.10 m: the daemon's patch, 0.35 × 0.15 m
+    return codes
+
+
+def test_the_path_home_keeps_the_followers_distance_from_unseen_cells():
+    free = FreeSpace.from_codes(corridor_with_patch(), CORRIDOR)
+    path = path_home(free, CORRIDOR_START[:2], CORRIDOR_HOME, FollowConfig().safe_distance_m)
+    assert path is not None and math.dist(path[-1], CORRIDOR_HOME) < 0.15
+    assert min(free.unseen_clearance_at(*p) for p in path[1:]) >= FollowConfig().unseen_clearance_m
+
+
+def test_the_follower_flies_on_past_a_small_unseen_patch():
+    table, config = load_action_table(), FollowConfig(noise_sigmas=0.0)  # the daemon's follower
+    free = FreeSpace.from_codes(corridor_with_patch(), CORRIDOR)
+    pose, previous = CORRIDOR_START, int(Action.HOVER)
+    for _ in range(10):
+        path = path_home(free, pose[:2], CORRIDOR_HOME, config.safe_distance_m)
+        action = choose_action(table, pose, previous, path, free, config)
+        assert action not in (None, Action.HOVER), f"hovers at {pose} with the way home open"
+        pose, previous = body_to_map(*pose, *table.mean_step(previous, action)), action
+    assert pose[0] > 3.0  # well past the patch (x ≤ 1.7 m), on the way home

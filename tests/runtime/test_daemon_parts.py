@@ -325,7 +325,7 @@ def test_the_reserve_follows_the_measured_path_home_round_a_wall(clock):
     high[:180, 100:102] = 1  # a wall across x = 5 m from y = 0 to 9 m (OCCUPIED = 1): the gap is at the top
     grid = GridSpec((0.0, 0.0), 0.05, high.shape)
     maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
-    config = replace(CONFIG, return_home=True, time_limit_s=300.0)
+    config = replace(CONFIG, return_home=True, time_limit_s=300.0, return_time_limit_s=30.0)
     phases, state, _ = _phases(FakeLink(Pose(10.0, 7.0, 1.0, 1.7, 0.0)), config)
     state.phase, state.home_xy = "exploring", (3.0, 1.0)
     cruise, fixed_s = 0.5, config.home_hover_s + config.home_reserve_margin_s
@@ -340,6 +340,16 @@ def test_the_reserve_follows_the_measured_path_home_round_a_wall(clock):
     )
     phases.measure_way_home(maps, (7.0, 2.0), clock.now + 1.0)  # too soon: the last measurement stays
     assert phases.home_reserve_s((7.0, 1.0)) == pytest.approx(path_m * config.home_path_slack / cruise + fixed_s)
+    # the return gets twice the reserve to fly home where that is longer than return_time_limit_s
+    phases.finish_exploring("time limit")
+    reserve_s = phases.home_reserve_s((7.0, 1.0))
+    assert phases.home_action(maps, (7.0, 1.0, 0.0), int(Action.HOVER)) is not None
+    clock.now += 1.5 * reserve_s  # past return_time_limit_s (30 s), within twice the reserve: still on its way
+    assert reserve_s * 1.5 > config.return_time_limit_s
+    assert phases.home_action(maps, (7.0, 1.0, 0.0), int(Action.HOVER)) is not None and state.phase == "returning"
+    clock.now += reserve_s
+    assert phases.home_action(maps, (7.0, 1.0, 0.0), int(Action.HOVER)) is None
+    assert (state.phase, state.reached_home) == ("home", False)
 
 
 # ---- the decision pipeline ---------------------------------------------------------------------------------------

@@ -39,7 +39,7 @@ class DaemonConfig:
     home_reserve_margin_s: float = 10.0
     return_home: bool = True
     home_hover_s: float = 2.0
-    return_time_limit_s: float = 180.0
+    return_time_limit_s: float = 180.0  # or twice the reserve at the end of exploration, where that is longer
     flight_height_m: float = HeightBand().flight_z_m
     takeoff_speed_mps: float = 0.5  # average climb speed (the min-jerk peak is 1.875× that)
     autopilot: str = "px4"  # start sequence: "px4" (OFFBOARD) or "ardupilot" (GUIDED + take-off)

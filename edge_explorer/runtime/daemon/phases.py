@@ -5,7 +5,8 @@
 segment. **Exploring** until the coverage goal (with a plan of the building), the map stop rule (without one: the
 maps' unverified area below ``stop_threshold_m2``, :mod:`edge_explorer.predict.verification`), the time limit, or
 the frontier planner has nothing left (:meth:`FlightPhases.finish_exploring`). **Returning**: along a path home
-over observed free space, with the same six actions, until there or ``return_time_limit_s``. **Home**: hover for
+over observed free space, with the same six actions, until there or out of time (``return_time_limit_s``, or twice
+the reserve for the way home where that is longer). **Home**: hover for
 ``home_hover_s``, then done.
 
 **Holding** (:meth:`FlightPhases.enter_hold`): on any input problem the watchdog reports, the setpoint stream
@@ -76,6 +77,7 @@ class FlightPhases:
         self._hold_since_s = 0.0
         self._way_home: tuple[float, tuple[float, float]] | None = None  # (path home m, measured from xy m)
         self._way_home_s: float | None = None  # when it was measured
+        self._return_limit_s: float | None = None  # how long the return may take, set on its first step
 
     @property
     def phase(self) -> str:
@@ -267,14 +269,14 @@ class FlightPhases:
         if path is not None:
             action = choose_action(self.table, pose, previous, path, free, cfg.follow)
         arrived = path is not None and action is None
-        timed_out = time.monotonic() - self._explore_end_s > cfg.return_time_limit_s
+        if self._return_limit_s is None:  # the first step home: a long way home gets twice its reserve to fly it
+            self._return_limit_s = max(cfg.return_time_limit_s, 2.0 * self.home_reserve_s(pose[:2]))
+        timed_out = time.monotonic() - self._explore_end_s > self._return_limit_s
         if arrived or timed_out:
             off_m = math.dist(pose[:2], self.state.home_xy)
             self.state.reached_home = arrived and off_m <= HOME_REACHED_M
             if timed_out and not arrived:
-                log.warning(
-                    "no way home within %.0f s, %.1f m from home: hovering here", cfg.return_time_limit_s, off_m
-                )
+                log.warning("no way home within %.0f s, %.1f m from home: hovering here", self._return_limit_s, off_m)
             elif not self.state.reached_home:
                 log.warning("the observed map leads no nearer home than %.1f m: hovering here", off_m)
             else:
