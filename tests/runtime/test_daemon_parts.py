@@ -14,6 +14,7 @@ import pytest
 
 from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.registry import build_planner
+from edge_explorer.plan.waypoint import path_home
 from edge_explorer.runtime.daemon import (
     DaemonConfig,
     DecisionPipeline,
@@ -350,6 +351,29 @@ def test_the_reserve_follows_the_measured_path_home_round_a_wall(clock):
     clock.now += reserve_s
     assert phases.home_action(maps, (7.0, 1.0, 0.0), int(Action.HOVER)) is None
     assert (state.phase, state.reached_home) == ("home", False)
+
+
+def test_the_return_plans_its_path_home_every_few_seconds_not_every_step(clock, monkeypatch):
+    # the whole-map plan costs ~0.2 s on a 271 m floor: a step home follows the last path on a window around the
+    # vehicle, and the path is planned again after home_path_every_s
+    from edge_explorer.mapping.observed import coarsen_codes
+
+    high = np.full((200, 400), FREE, dtype=np.int8)  # 20 m × 10 m, all seen free
+    grid = GridSpec((0.0, 0.0), 0.05, high.shape)
+    maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
+    plans = []
+    monkeypatch.setattr(phases_module, "path_home", lambda *a, **k: plans.append(a[1]) or path_home(*a, **k))
+    config = replace(CONFIG, return_home=True)
+    phases, state, _ = _phases(FakeLink(Pose(10.0, 18.0, 5.0, 1.7, np.pi)), config)
+    state.phase, state.home_xy = "exploring", (2.0, 5.0)
+    phases.finish_exploring("time limit")
+    for _ in range(3):  # facing home along a free corridor: forward, on the first plan
+        assert phases.home_action(maps, (18.0, 5.0, np.pi), int(Action.FORWARD)) == Action.FORWARD
+        clock.now += 1.0
+    assert len(plans) == 1
+    clock.now += config.home_path_every_s
+    assert phases.home_action(maps, (18.0, 5.0, np.pi), int(Action.FORWARD)) == Action.FORWARD
+    assert len(plans) == 2
 
 
 # ---- the decision pipeline ---------------------------------------------------------------------------------------

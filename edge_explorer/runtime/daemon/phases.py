@@ -32,17 +32,21 @@ from edge_explorer.mapping.observed import ObservedMaps
 from edge_explorer.plan.follow import FreeSpace, choose_action
 from edge_explorer.plan.trajectory import TrajectoryState, min_jerk_segment
 from edge_explorer.plan.waypoint import path_home
+from edge_explorer.plan.window import crop_maps, place_window
 from edge_explorer.runtime.daemon.config import DaemonConfig
 from edge_explorer.runtime.daemon.record import RunRecord
 from edge_explorer.runtime.daemon.setpoints import SetpointFeeder
 from edge_explorer.runtime.daemon.state import FlightMaps, FlightState
 from edge_explorer.runtime.mavlink_link import LinkError, MavlinkLink
 from edge_explorer.runtime.mavlink_link import Pose as Odometry
-from edge_explorer.vehicle.dynamics import ActionTable
+from edge_explorer.vehicle.dynamics import Action, ActionTable
 
 log = logging.getLogger(__name__)
 MAP_STOP_ENDING = "map says verified"  # the ending of an exploration the map stop rule ended (issue #56)
 HOME_REACHED_M = 1.0  # a return that ends this close to home reached it (the report's returned_home)
+# The return's follower reads this square around the vehicle: its two-step motions end within ~1.5 m and it reads
+# clearances up to its comfort distance, so it answers as on the whole map (the safety check's window, decisions.py).
+FOLLOW_WINDOW_M = 8.0
 
 
 class FlightPhases:
@@ -78,6 +82,8 @@ class FlightPhases:
         self._way_home: tuple[float, tuple[float, float]] | None = None  # (path home m, measured from xy m)
         self._way_home_s: float | None = None  # when it was measured
         self._return_limit_s: float | None = None  # how long the return may take, set on its first step
+        self._home_path: np.ndarray | None = None  # the return's path home, planned at _home_path_s
+        self._home_path_s: float | None = None
 
     @property
     def phase(self) -> str:
@@ -240,6 +246,12 @@ class FlightPhases:
             way_m = max(straight_m, (path_m + math.dist(xy_m, measured_at)) * cfg.home_path_slack)
         return way_m / cruise_m_s + cfg.home_hover_s + cfg.home_reserve_margin_s
 
+    def _plan_home(self, maps: ObservedMaps, pose: tuple[float, float, float], now: float) -> None:
+        assert self.state.home_xy is not None
+        free = FreeSpace.from_codes(maps.high, maps.high_grid)
+        self._home_path = path_home(free, pose[:2], self.state.home_xy, self.config.follow.safe_distance_m)
+        self._home_path_s = now
+
     def measure_way_home(self, maps: ObservedMaps, xy_m: tuple[float, float], now: float) -> None:
         """Measure the path home from ``xy_m`` over the observed map — the path the return would fly now
         (:func:`~edge_explorer.plan.waypoint.path_home`) — for the reserve, at most every ``home_path_every_s``
@@ -260,14 +272,26 @@ class FlightPhases:
 
     def home_action(self, maps: ObservedMaps, pose: tuple[float, float, float], previous: int) -> int | None:
         """The next action along a path home over observed free space (after action ``previous``); None (and
-        hovering) once there."""
+        hovering) once there.
+
+        The path is planned over the whole observed map at most every ``home_path_every_s`` (about 0.2 s on a
+        271 m floor) and again whenever the follower would hover along an older one (a wall seen since may block
+        it); each step's follower reads only a ``FOLLOW_WINDOW_M`` square around the vehicle, so a step home costs
+        the same on any floor."""
         assert self.state.home_xy is not None and self._explore_end_s is not None
         cfg = self.config
-        free = FreeSpace.from_codes(maps.high, maps.high_grid)
-        path = path_home(free, pose[:2], self.state.home_xy, cfg.follow.safe_distance_m)
-        action = None
-        if path is not None:
-            action = choose_action(self.table, pose, previous, path, free, cfg.follow)
+        now = time.monotonic()
+        fresh = self._home_path_s is None or now - self._home_path_s >= cfg.home_path_every_s
+        if fresh:
+            self._plan_home(maps, pose, now)
+        near = crop_maps(maps, place_window(maps.low_grid, pose[:2], FOLLOW_WINDOW_M))
+        free = FreeSpace.from_codes(near.high, near.high_grid)
+        path = self._home_path
+        action = None if path is None else choose_action(self.table, pose, previous, path, free, cfg.follow)
+        if not fresh and action == Action.HOVER:  # the old path may be blocked now: plan again before hovering
+            self._plan_home(maps, pose, now)
+            path = self._home_path
+            action = None if path is None else choose_action(self.table, pose, previous, path, free, cfg.follow)
         arrived = path is not None and action is None
         if self._return_limit_s is None:  # the first step home: a long way home gets twice its reserve to fly it
             self._return_limit_s = max(cfg.return_time_limit_s, 2.0 * self.home_reserve_s(pose[:2]))
