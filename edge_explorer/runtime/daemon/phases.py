@@ -246,11 +246,14 @@ class FlightPhases:
             way_m = max(straight_m, (path_m + math.dist(xy_m, measured_at)) * cfg.home_path_slack)
         return way_m / cruise_m_s + cfg.home_hover_s + cfg.home_reserve_margin_s
 
-    def _plan_home(self, maps: ObservedMaps, pose: tuple[float, float, float], now: float) -> None:
+    def _path_home(self, maps: ObservedMaps, xy_m: tuple[float, float]) -> np.ndarray | None:
+        """The way home from ``xy_m`` over the whole observed map (:func:`~edge_explorer.plan.waypoint.path_home`)."""
         assert self.state.home_xy is not None
         free = FreeSpace.from_codes(maps.high, maps.high_grid)
-        self._home_path = path_home(free, pose[:2], self.state.home_xy, self.config.follow.safe_distance_m)
-        self._home_path_s = now
+        return path_home(free, xy_m, self.state.home_xy, self.config.follow.safe_distance_m)
+
+    def _plan_home(self, maps: ObservedMaps, pose: tuple[float, float, float], now: float) -> None:
+        self._home_path, self._home_path_s = self._path_home(maps, pose[:2]), now
 
     def measure_way_home(self, maps: ObservedMaps, xy_m: tuple[float, float], now: float) -> None:
         """Measure the path home from ``xy_m`` over the observed map — the path the return would fly now
@@ -263,8 +266,7 @@ class FlightPhases:
         if self._way_home_s is not None and now - self._way_home_s < cfg.home_path_every_s:
             return
         self._way_home_s = now
-        free = FreeSpace.from_codes(maps.high, maps.high_grid)
-        path = path_home(free, xy_m, self.state.home_xy, cfg.follow.safe_distance_m)
+        path = self._path_home(maps, xy_m)
         if path is None:
             return
         path_m = float(np.hypot(*np.diff(path, axis=0).T).sum()) + math.dist(path[-1], self.state.home_xy)
