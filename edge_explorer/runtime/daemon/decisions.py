@@ -174,15 +174,15 @@ class DecisionPipeline:
         low_cell = _cell(low_grid, pose)
         # The prediction feeds the goal planner's fused map and the coverage count. When Nearest Frontier decides
         # (no policy, or the policy handed over) the waypoint does not depend on it, so it runs once the waypoint is
-        # out (the coverage goal then ends exploration one decision later).
+        # out. The progress record (coverage against a plan, the maps' unverified area: ~5 ms on a 271 m floor) never
+        # shapes the waypoint, so it always runs then: the coverage goal or the map stop rule ends exploration one
+        # decision after the one whose maps reached it.
         predict_after = (
             self.predictor is not None and self.policy is None and self.config.exploration_planner == "frontier"
         )
-        thresholded = None
-        if not predict_after:
-            thresholded = self.predict(maps, low_cell)
-            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase, self.probabilities)
-        if self.phases.phase == "exploring":
+        thresholded = None if predict_after else self.predict(maps, low_cell)
+        phase = self.phases.phase  # the phase the vehicle flew this step's path in, for the record
+        if phase == "exploring":
             self.phases.check_end_of_exploration(
                 now, self.record.coverage, self.record.unverified_m2, (odometry.x_m, odometry.y_m)
             )
@@ -208,7 +208,7 @@ class DecisionPipeline:
         self.timings.add("decision_cpu", time.thread_time() - frame_in_cpu_s)
         if predict_after:
             thresholded = self.predict(maps, low_cell)
-            self.record.record_progress(now, odometry, maps, thresholded, self.phases.phase, self.probabilities)
+        self.record.record_progress(now, odometry, maps, thresholded, phase, self.probabilities)
         if self.phases.phase == "exploring":  # the reserve's way home, off the frame-in → waypoint-out path
             self.phases.measure_way_home(maps, (odometry.x_m, odometry.y_m), now)
         self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
