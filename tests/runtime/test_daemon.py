@@ -360,15 +360,21 @@ def test_the_frontier_planner_with_a_predictor_counts_predicted_coverage(raster,
 
 @pytest.mark.slow
 def test_the_predictive_expert_flies_on_the_fused_map(raster, camera, tmp_path):
-    """``exploration_planner = predfrontier``: the prediction comes before the waypoint (the planner targets the
-    fused map's frontier) and the flight reaches the coverage goal without a collision."""
+    """``exploration_planner = predfrontier``: the planner targets the fused map's frontier, made of the prediction
+    run after the previous waypoint went out, thresholded against each decision's own maps; the flight reaches the
+    coverage goal without a collision."""
     predictor = PredictorRuntime(load_model(write_predictor_model(tmp_path / "predictor"), ORDER))
     config = replace(CONFIG, coverage_goal=0.7, time_limit_s=12.0, exploration_planner="predfrontier")
     flight = fly(raster, camera, tmp_path, config, predictor=predictor)
     report = flight.report
     assert report.planner == "predfrontier" and report.predictor
     assert report.ending == "coverage goal" and report.coverage >= 0.7
-    assert report.stages["predictor"].count == report.decisions
+    # one prediction after each waypoint, and one before a decision only when there is none on its maps' grid yet
+    # (the first decision, a growth of the maps)
+    predictions = report.stages["predictor"].count
+    assert report.decisions < predictions <= report.decisions + 1 + flight.daemon.maps.growths
+    # every decision thresholds the latest prediction against its own maps before planning
+    assert report.stages["thresholding"].count == 2 * report.decisions
     assert flight.vehicle.collisions == 0
     with pytest.raises(ValueError, match="exploration_planner"):
         replace(CONFIG, exploration_planner="nearest")

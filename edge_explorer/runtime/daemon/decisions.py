@@ -7,8 +7,15 @@ actions best first, lazily (:meth:`DecisionPipeline._candidates`): the goal plan
 (:class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`) when one is loaded, else the configured frontier
 planner's, the very objects the benchmark flies — the way home's, hover — the first one the safety check on the
 observed high-res map accepts (:class:`~edge_explorer.plan.waypoint.WaypointPlanner`) becomes the waypoint, and a
-minimum-jerk segment to it goes to the setpoint stream. With Nearest Frontier the waypoint does not depend on the
-prediction, so the predictor then runs right after the waypoint is out, off the frame-in → waypoint-out path.
+minimum-jerk segment to it goes to the setpoint stream.
+
+**The predictor runs off the frame-in → waypoint-out path.** It runs right after each waypoint is out, on that
+decision's maps; the next decision thresholds that prediction against its own, newer observed maps (0.4 ms) and
+plans on the result. The planner therefore sees a prediction made one decision (~0.5 m of flight, a few frames)
+earlier, while every observed cell in its fused map is current: the predictor's ~8 ms (int8, LiteRT) leave each
+decision's latency. A decision predicts first itself when there is no prediction yet or the maps' grid has changed
+since (they grow, :mod:`edge_explorer.mapping.growing`). With Nearest Frontier the waypoint does not depend on the
+prediction at all.
 
 **Where a step starts.** The autopilot tracks a moving position setpoint with a lag, so a step starts from the
 *reference* (the end of the previous segment), not from the lagging odometry; the safety check uses the odometry
@@ -124,6 +131,7 @@ class DecisionPipeline:
         self.planner = make_planner(config, table, policy, timings)
         self.view: DecisionView | None = None
         self.probabilities: np.ndarray | None = None  # the latest prediction on the low-res grid
+        self._predicted_on: GridSpec | None = None  # the low-res grid of :attr:`probabilities`
         self._previous_action = int(Action.HOVER)
         self._frontier_retries = 0
         self._candidate_s = 0.0
@@ -172,15 +180,13 @@ class DecisionPipeline:
             high, high_grid, low, low_grid = self.maps.project(cfg.band)
         maps = ObservedMaps(high_grid, low_grid, high, low)
         low_cell = _cell(low_grid, pose)
-        # The prediction feeds the goal planner's fused map and the coverage count. When Nearest Frontier decides
-        # (no policy, or the policy handed over) the waypoint does not depend on it, so it runs once the waypoint is
-        # out. The progress record (coverage against a plan, the maps' unverified area: ~5 ms on a 271 m floor) never
-        # shapes the waypoint, so it always runs then: the coverage goal or the map stop rule ends exploration one
-        # decision after the one whose maps reached it.
-        predict_after = (
-            self.predictor is not None and self.policy is None and self.config.exploration_planner == "frontier"
-        )
-        thresholded = None if predict_after else self.predict(maps, low_cell)
+        # The prediction feeds the goal planner's fused map and the coverage count; it runs once the waypoint is out
+        # (module docstring), and this decision plans on the latest one. When Nearest Frontier decides (no policy,
+        # or the policy handed over) the waypoint does not depend on it. The progress record (coverage against a
+        # plan, the maps' unverified area: ~5 ms on a 271 m floor) never shapes the waypoint, so it runs then too:
+        # the coverage goal or the map stop rule ends exploration one decision after the one whose maps reached it.
+        frontier_decides = self.policy is None and self.config.exploration_planner == "frontier"
+        thresholded = None if frontier_decides else self.latest_prediction(maps, low_cell)
         phase = self.phases.phase  # the phase the vehicle flew this step's path in, for the record
         if phase == "exploring":
             self.phases.check_end_of_exploration(
@@ -206,8 +212,7 @@ class DecisionPipeline:
         self.record.decision(waypoint.source)
         self.timings.add("decision", time.monotonic() - frame_in_s)
         self.timings.add("decision_cpu", time.thread_time() - frame_in_cpu_s)
-        if predict_after:
-            thresholded = self.predict(maps, low_cell)
+        thresholded = self.predict(maps, low_cell)  # on this decision's maps: the record's, and the next decision's
         self.record.record_progress(now, odometry, maps, thresholded, phase, self.probabilities)
         if self.phases.phase == "exploring":  # the reserve's way home, off the frame-in → waypoint-out path
             self.phases.measure_way_home(maps, (odometry.x_m, odometry.y_m), now)
@@ -220,6 +225,16 @@ class DecisionPipeline:
             waypoint.x_m,
             waypoint.y_m,
         )
+
+    def latest_prediction(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
+        """Observed ∪ the latest prediction, thresholded against ``maps`` (docs/design.md §5); a new prediction when
+        there is none on ``maps``' grid (the first decision, or the maps grew since). None without a predictor."""
+        if self.predictor is None:
+            return None
+        if self.probabilities is None or self._predicted_on != maps.low_grid:
+            return self.predict(maps, low_cell)
+        with self.timings.timed("thresholding"):
+            return thresholded_map(self.probabilities, maps.low, maps.observed_area_m2(), self.config.thresholds)
 
     def predict(self, maps: ObservedMaps, low_cell: tuple[int, int]) -> np.ndarray | None:
         """Observed ∪ thresholded prediction on the low-res grid (docs/design.md §5); None without a predictor. The
@@ -238,7 +253,7 @@ class DecisionPipeline:
             )
             self.predictor = None
             return None
-        self.probabilities = probabilities
+        self.probabilities, self._predicted_on = probabilities, maps.low_grid
         with self.timings.timed("thresholding"):
             return thresholded_map(probabilities, maps.low, maps.observed_area_m2(), self.config.thresholds)
 
