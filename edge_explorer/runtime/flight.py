@@ -61,9 +61,11 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
     from contextlib import ExitStack
 
     from edge_explorer.runtime.device_profile import load_profile
+    from edge_explorer.runtime.heap import bound_heap, trim_heap
     from edge_explorer.runtime.kernels import kernels_warm, release_llvm_pages, warm_kernels
     from edge_explorer.world.catalog import load_building
 
+    bound_heap()  # large arrays go back to the system when freed (runtime/heap.py)
     out = options.out_dir
     out.mkdir(parents=True, exist_ok=True)
     file_log = logging.FileHandler(out / "daemon.log", mode="w")
@@ -142,6 +144,7 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
             )
             vehicle_thread = simulation.vehicle_thread if simulation is not None else None
             vehicle_cpu0 = thread_cpu_s(vehicle_thread) if vehicle_thread is not None else 0.0
+            trim_heap()  # the set-up's transients (the plan's loading, the models' warm-up) are gone by now
             with _stop_on_signals(daemon):
                 report = daemon.run(_progress_printer(models, config.exploration_planner) if options.progress else None)
             vehicle_cpu_s = (thread_cpu_s(vehicle_thread) if vehicle_thread is not None else 0.0) - vehicle_cpu0
