@@ -136,19 +136,42 @@ def path_home(
     home_xy_m: tuple[float, float],
     safe_distance_m: float,
     unseen_distance_m: float = FollowConfig().unseen_clearance_m,
+    boxed_in_distance_m: float = FollowConfig().robot_radius_m,
 ) -> np.ndarray | None:
     """(K, 2) path from ``from_xy_m`` to the reachable planning cell nearest ``home_xy_m``, through observed free
     space at least ``safe_distance_m`` from obstacles and ``unseen_distance_m`` from unknown cells — the follower's
     own rules, so that :func:`~edge_explorer.plan.follow.choose_action` can fly it: a path grazing a small unseen
     patch in the middle of a corridor put the pursuit target behind a patch the follower will not cross, and hover
     won (the whole-floor daemon flight of session 43 hovered there until its return time ran out). ``None`` if the
-    vehicle's own cell has no way out."""
-    graph = PlanningGraph.build(free, safe_distance_m, from_xy_m, GraphConfig(), unseen_distance_m)
-    start = graph.node_at(*from_xy_m)
+    vehicle's own cell has no way out.
+
+    **Boxed in.** A planning cell needs *all* its 0.05 m cells ``safe_distance_m`` clear, the follower only the
+    cells it flies over. In a gap narrower than twice the safe distance the clearest 0.05 m cells across it can be
+    exactly ``safe_distance_m`` clear and straddle two planning cells, each then a cell short: one sensor-noise hit
+    on a 0.7 m gap's edge left the whole-floor daemon flight of session 45 no planning cell around its own (the
+    escape rule did not apply: the vehicle stood exactly ``safe_distance_m`` clear) while the follower could fly
+    out. Only when the vehicle's cell reaches no other cell is the path planned again with planning cells
+    ``boxed_in_distance_m`` clear (the robot radius: no cell of the path closer to an obstacle); the follower still
+    flies only by its own rules."""
+    graph, start, cost, predecessors = _search_from(free, from_xy_m, safe_distance_m, unseen_distance_m)
     if start < 0:
         return None
-    cost, predecessors = graph.search([start])
+    if np.isfinite(cost[0]).sum() == 1 and boxed_in_distance_m < safe_distance_m:
+        graph, start, cost, predecessors = _search_from(free, from_xy_m, boxed_in_distance_m, unseen_distance_m)
     reachable = np.flatnonzero(np.isfinite(cost[0]))
     xy = graph.node_xy_m(reachable)
     goal = int(reachable[np.argmin(np.hypot(xy[:, 0] - home_xy_m[0], xy[:, 1] - home_xy_m[1]))])
     return graph.path_xy_m(predecessors[0], goal)
+
+
+def _search_from(
+    free: FreeSpace, from_xy_m: tuple[float, float], safe_distance_m: float, unseen_distance_m: float
+) -> tuple[PlanningGraph, int, np.ndarray, np.ndarray]:
+    """(graph, the vehicle's node, cost, predecessors) of :func:`path_home`'s search; node −1 (and no search)
+    where the vehicle's cell is off the graph."""
+    graph = PlanningGraph.build(free, safe_distance_m, from_xy_m, GraphConfig(), unseen_distance_m)
+    start = graph.node_at(*from_xy_m)
+    if start < 0:
+        return graph, start, np.empty((1, 0)), np.empty((1, 0), dtype=np.int32)
+    cost, predecessors = graph.search([start])
+    return graph, start, cost, predecessors

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from edge_explorer.mapping import ego
-from edge_explorer.plan.follow import FollowConfig, FreeSpace, choose_action
+from edge_explorer.plan.follow import FollowConfig, FreeSpace, choose_action, remaining_path_m
 from edge_explorer.plan.waypoint import HOLD, WaypointPlanner, action_pose, cruise_velocity, path_home
 from edge_explorer.vehicle import dynamics
 from edge_explorer.vehicle.dynamics import Action, body_to_map, load_action_table
@@ -176,3 +176,45 @@ def test_the_follower_flies_on_past_a_small_unseen_patch():
         assert action not in (None, Action.HOVER), f"hovers at {pose} with the way home open"
         pose, previous = body_to_map(*pose, *table.mean_step(previous, action)), action
     assert pose[0] > 3.0  # well past the patch (x ≤ 1.7 m), on the way home
+
+
+# The whole-floor daemon flight of session 45 stood in a 0.7 m gap exactly safe_distance_m from its wall when one
+# sensor-noise hit landed on the gap's other edge: the clearest 0.05 m cells across the gap, 0.30 m clear, then
+# straddled two 0.10 m planning cells, each with a cell 0.25 m clear, and no planning cell around the vehicle's own
+# was left (the escape rule did not apply: it stood exactly safe_distance_m clear) — no way home, though the
+# follower could fly out.
+ROOMS = GridSpec((0.0, 0.0), 0.05, (80, 80))  # 4 m × 4 m: a wall across y 1.8–2.2 m, two rooms either side
+ROOMS_HOME = (2.0, 3.5)  # in the north room
+IN_THE_GAP = (2.0, 2.0, math.radians(90.0))  # facing north, at rest, exactly 0.30 m from the gap's west edge
+
+
+def rooms_with_a_noisy_gap() -> np.ndarray:
+    codes = np.full(ROOMS.shape, FREE, dtype=CELL_DTYPE)
+    codes[0, :] = codes[-1, :] = codes[:, 0] = codes[:, -1] = OCCUPIED
+    codes[36:44, :] = OCCUPIED  # the wall, 0.4 m thick
+    codes[36:44, 34:47] = FREE  # the gap: x 1.70–2.35 m, 0.65 m wide
+    codes[40, 46] = OCCUPIED  # one sensor-noise hit on the gap's east edge (x 2.30–2.35 m, y 2.00–2.05 m)
+    return codes
+
+
+def test_a_vehicle_in_a_gap_a_noise_hit_narrowed_gets_a_way_out_the_follower_flies():
+    table, config = load_action_table(), FollowConfig(noise_sigmas=0.0)  # the daemon's follower
+    free = FreeSpace.from_codes(rooms_with_a_noisy_gap(), ROOMS)
+    assert free.clearance_at(*IN_THE_GAP[:2]) == pytest.approx(config.safe_distance_m)
+    pose, previous = IN_THE_GAP, int(Action.HOVER)
+    path = path_home(free, pose[:2], ROOMS_HOME, config.safe_distance_m)
+    assert path is not None and len(path) > 1 and math.dist(path[-1], ROOMS_HOME) < 0.15, "boxed in the gap"
+    assert min(free.clearance_at(*p) for p in path[1:]) >= config.robot_radius_m  # never into the band's inside
+    action = choose_action(table, pose, previous, path, free, config)
+    assert action not in (None, Action.HOVER)
+    end = body_to_map(*pose, *table.mean_step(previous, action))
+    assert remaining_path_m(path, end[:2]) < remaining_path_m(path, pose[:2]) - 0.1
+    for _ in range(6):  # and on, out of the gap into the north room, planning again every step as the daemon does
+        path = path_home(free, pose[:2], ROOMS_HOME, config.safe_distance_m)
+        action = choose_action(table, pose, previous, path, free, config)
+        if action is None:  # arrived
+            break
+        assert action != Action.HOVER, f"hovers at {pose}"
+        pose, previous = body_to_map(*pose, *table.mean_step(previous, action)), action
+        assert free.clearance_at(*pose[:2]) >= config.safe_distance_m
+    assert pose[1] > 2.5  # out of the wall (y ≤ 2.2 m), in the north room
