@@ -572,3 +572,19 @@ def test_the_return_counts_as_home_only_when_it_ends_at_home(clock):
         phases.finish_exploring("time limit")
         assert phases.home_action(maps, (*xy, 0.0), int(Action.HOVER)) is None  # nowhere nearer to go
         assert (state.phase, state.reached_home) == ("home", reached)
+
+
+def test_the_return_arrives_within_a_step_of_home(clock):
+    # 0.3 m from home, facing away, in open space: the follower would turn in place for ever (its goal tolerance is
+    # 0.25 m and a forward step ~0.5 m; session 45's 271 m flight did so until its return time ran out)
+    from edge_explorer.mapping.observed import coarsen_codes
+
+    high = np.full((200, 200), FREE, dtype=np.int8)  # 10 m × 10 m, all seen free
+    grid = GridSpec((0.0, 0.0), 0.05, high.shape)
+    maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
+    for yaw in (0.0, np.pi / 2, np.pi, -np.pi / 2):
+        phases, state, _ = _phases(FakeLink(Pose(10.0, 5.3, 5.0, 1.7, yaw)), replace(CONFIG, return_home=True))
+        state.phase, state.home_xy = "exploring", (5.0, 5.0)
+        phases.finish_exploring("time limit")
+        assert phases.home_action(maps, (5.3, 5.0, yaw), int(Action.HOVER)) is None
+        assert (state.phase, state.reached_home) == ("home", True)

@@ -44,6 +44,11 @@ from edge_explorer.vehicle.dynamics import Action, ActionTable
 log = logging.getLogger(__name__)
 MAP_STOP_ENDING = "map says verified"  # the ending of an exploration the map stop rule ended (issue #56)
 HOME_REACHED_M = 1.0  # a return that ends this close to home reached it (the report's returned_home)
+# The return has arrived this close to home: a forward step is ~0.5 m, and the follower cannot close the last few
+# decimetres to its path's end by steps of that size (session 45: a 15-minute flight of the 271 m floor turned in
+# place 0.31 m from home, its path's end 0.05 m beyond the follower's 0.25 m goal tolerance, until the return's
+# time ran out).
+HOME_ARRIVAL_M = 0.5
 # The return's follower reads this square around the vehicle: its two-step motions end within ~1.5 m and it reads
 # clearances up to its comfort distance, so it answers as on the whole map (the safety check's window, decisions.py).
 FOLLOW_WINDOW_M = 8.0
@@ -294,7 +299,7 @@ class FlightPhases:
             self._plan_home(maps, pose, now)
             path = self._home_path
             action = None if path is None else choose_action(self.table, pose, previous, path, free, cfg.follow)
-        arrived = path is not None and action is None
+        arrived = (path is not None and action is None) or math.dist(pose[:2], self.state.home_xy) <= HOME_ARRIVAL_M
         if self._return_limit_s is None:  # the first step home: a long way home gets twice its reserve to fly it
             self._return_limit_s = max(cfg.return_time_limit_s, 2.0 * self.home_reserve_s(pose[:2]))
         timed_out = time.monotonic() - self._explore_end_s > self._return_limit_s
