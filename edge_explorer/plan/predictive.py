@@ -56,6 +56,7 @@ from edge_explorer.plan.frontier import (
     goal_candidates,
     nearest_frontier_goal,
 )
+from edge_explorer.plan.sight import clear_lines
 from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.vehicle.sensor import SensorConfig
 from edge_explorer.world.grid import FREE, OCCUPIED, UNKNOWN, GridSpec
@@ -195,11 +196,7 @@ def visible_unknown(
     delta, distance = delta[near], distance[near]
     samples = int(math.ceil(2.0 * range_m / grid.resolution_m)) + 2
     t = np.linspace(0.0, 1.0, samples)[:-1]  # the target cell itself does not block its own view
-    points = viewpoint_xy_m + t[None, :, None] * delta[:, None, :]  # (K, S, 2)
-    prow, pcol = grid.cell_of(points[..., 0], points[..., 1])
-    prow = np.clip(prow, 0, grid.shape[0] - 1)
-    pcol = np.clip(pcol, 0, grid.shape[1] - 1)
-    clear = ~blocking[prow, pcol].any(axis=1)
+    clear = clear_lines(viewpoint_xy_m, delta, t, blocking, grid.origin_xy, grid.resolution_m)
     return viewpoint_xy_m + delta[clear]
 
 

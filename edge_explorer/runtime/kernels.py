@@ -43,10 +43,11 @@ _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S+) \S+ \S+ \S+\s*(.*)$")
 def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> None:
     """Run each numba kernel of a flight over ``raster`` once, with the flight's argument types: with ``camera``
     (raster → the simulated depth camera, :meth:`edge_explorer.sim.flight.SimulatedFlight.camera`) the camera's
-    render, then fusion into both voxel maps, projection, the coverage count, the follower's swept-path test and the
-    learned planner's map inflation (numba keeps one machine-code version per argument types, so these calls compile
-    or load exactly those; tests/runtime/test_kernels.py checks the default flight loads no other). Without a camera
-    (a real drone's) the fusion takes a flat frame of the D435's decimated stream: the same argument types."""
+    render, then fusion into both voxel maps, projection, the coverage count, the follower's swept-path test, the
+    learned planner's map inflation and the planners' lines of sight (numba keeps one machine-code version per
+    argument types, so these calls compile or load exactly those; tests/runtime/test_kernels.py checks the default
+    flight loads no other). Without a camera (a real drone's) the fusion takes a flat frame of the D435's decimated
+    stream: the same argument types."""
     import numpy as np
 
     from edge_explorer.mapping.ego import inflate_codes
@@ -54,6 +55,7 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     from edge_explorer.mapping.metrics import map_metrics
     from edge_explorer.mapping.projection import HeightBand
     from edge_explorer.mapping.voxels import FusionConfig
+    from edge_explorer.plan.sight import clear_lines
     from edge_explorer.vehicle.camera import CameraConfig, CameraPose
     from edge_explorer.vehicle.dynamics import swept_path_blocked
     from edge_explorer.world.grid import LOW_RES_M
@@ -75,7 +77,7 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     maps = GrowingMaps(x_m, y_m, z_range, FusionConfig(), GrowthConfig(window_m=12.0, start_m=2.0), band)
     maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
     maps.ensure_covers(x_m + 8.0, y_m)  # a growth and a move of the 0.05 m window (its shift kernel)
-    high, high_grid, low, _ = maps.project()
+    high, high_grid, low, low_grid = maps.project()
     coarse = raster.coarsened(LOW_RES_M)
     truth, interior = coarse.truth_codes(), coarse.interior
     shape = truth.shape
@@ -84,6 +86,7 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     map_metrics(fill, truth, interior, np.zeros(shape, dtype=low.dtype))
     swept_path_blocked(np.zeros(high.shape, dtype=bool), high_grid, (x_m, y_m), (x_m, y_m))
     inflate_codes(high, high_grid.resolution_m)  # the learned planner's observation (mapping/ego.py)
+    clear_lines(np.zeros(2), np.ones((1, 2)), np.linspace(0.0, 1.0, 3), low == 0, low_grid.origin_xy, 0.2)  # views
     global _warm
     _warm = True
 
