@@ -16,7 +16,8 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
   towards it through the window (:class:`Transit`: the window's fine graph and the shared follower, to the last
   route point before the route leaves the window), and each time the window moves the local planner looks first:
   the route ends as soon as there is something to explore in the window. The transit's point only ever moves on
-  along the route (a window that moved back and forth would otherwise send the vehicle back and forth with it). A
+  along the route (a window that moved back and forth would otherwise send the vehicle back and forth with it);
+  once the window holds no point of the route after it, the route ends and a new one starts from the vehicle. A
   target is dropped for the flight when its route's end is reached without the local planner taking it, when the
   fine graph cannot follow its route three times in a row, or when it was routed to four times (each progress
   rule is bounded, so the flight always ends).
@@ -292,8 +293,8 @@ class WindowedPlanner:
         self.window = wanted
         self.local.remember({k: np.ascontiguousarray(v[wanted.slices()]) for k, v in self._memory.items()})
         self.transit.remember({})
-        if self.route is not None:
-            self._lead(self.route, onward_only=True)
+        if self.route is not None and not self._lead(self.route, onward_only=True):
+            self.route = None
         return True
 
     def _whole_memory(self, grid: GridSpec) -> dict[str, np.ndarray]:
@@ -362,21 +363,36 @@ class WindowedPlanner:
         self._lead(self.route)
         return True
 
-    def _lead(self, route: Route, onward_only: bool = False) -> None:
-        """Point the transit at the last point of ``route`` before it leaves the window (less the margin); with
-        ``onward_only``, only when that lies further along the route than the transit's point or that point has
-        left the window."""
+    def _lead(self, route: Route, onward_only: bool = False) -> bool:
+        """Point the transit at the last point of ``route`` before it leaves the window (less the margin); whether
+        the route still leads anywhere. With ``onward_only`` (the window moved) the point only moves on: it stays
+        while it lies in the window and that last point is no further along; when it has left the window it moves to
+        the last point of the route's next stretch in the window *after* it, and the route has ended (False) when
+        no point after it lies in the window (the vehicle was led off the route: a new route starts from where it
+        is, and each counts against :data:`_ROUTES_PER_TARGET`). Going back to the start of the route instead, as
+        a route whose start the window had left once did, flew the vehicle back and forth between the two ends
+        for thousands of steps (a generated test floor, session 46)."""
         assert self._grid is not None
         rows, cols = self._inner()
         (x0, y0), r = self._grid.origin_xy, self._grid.resolution_m
         box = (x0 + cols.start * r, y0 + rows.start * r, x0 + cols.stop * r, y0 + rows.stop * r)
-        via = via_index(route.path_xy_m, box)
-        if onward_only and 0 <= self._via < len(route.path_xy_m) and via <= self._via:
-            x, y = route.path_xy_m[self._via]
-            if box[0] <= x <= box[2] and box[1] <= y <= box[3]:
-                return  # the transit's point is still in the window and no further along: it stays
+        path = route.path_xy_m
+        via = via_index(path, box)
+        if onward_only and 0 <= self._via < len(path):
+            x, y = path[:, 0], path[:, 1]
+            inside = (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+            if inside[self._via]:
+                if via <= self._via:
+                    return True  # the transit's point is still in the window and no further along: it stays
+            else:
+                onward = np.flatnonzero(inside[self._via + 1 :])
+                if len(onward) == 0:
+                    return False
+                start = self._via + 1 + int(onward[0])
+                via = start + via_index(path[start:], box)
         self._via = via
-        self.transit.lead_to(route.path_xy_m[via])
+        self.transit.lead_to(path[via])
+        return True
 
     def _drop(self, cells: np.ndarray) -> np.ndarray:
         """Drop the target ``cells`` (flat indices on the whole map) and the cells within two of them for the
@@ -390,9 +406,10 @@ class WindowedPlanner:
 
     def _route_failed(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None) -> bool:
         """The transit reached its point or could not: drop the route's target when that was the route's end (the
-        local planner did not take it) or after :data:`_TRANSIT_TRIES` failures; then route anew. Whether a new
-        route exists."""
-        assert self.route is not None
+        local planner did not take it) or after :data:`_TRANSIT_TRIES` failures; then route anew (also when the
+        window moved past the route's last point, :meth:`_lead`). Whether a new route exists."""
+        if self.route is None:
+            return self._new_route(maps, pose, fused_low)
         self._failed_routes += 1
         if self._via == len(self.route.path_xy_m) - 1 or self._failed_routes >= _TRANSIT_TRIES:
             self._drop(self.route.target_cells)

@@ -9,7 +9,7 @@ import pytest
 from edge_explorer.mapping.observed import ObservedMaps, coarsen_codes
 from edge_explorer.plan.frontier import NearestFrontier
 from edge_explorer.plan.registry import build_planner
-from edge_explorer.plan.route import RouteConfig, nearest_route, via_index
+from edge_explorer.plan.route import Route, RouteConfig, nearest_route, via_index
 from edge_explorer.plan.window import (
     Window,
     WindowConfig,
@@ -178,6 +178,32 @@ def test_a_target_routed_to_four_times_is_dropped_for_the_next_nearest():
     assert ends[0] == ends[1] == ends[2] == ends[3]
     assert not ends[4] & ends[0]  # the fifth goes to other cells of the far frontier
     assert planner.route.path_xy_m[-1, 0] > 188.0
+
+
+def test_when_the_window_left_the_transits_point_it_leads_on_along_the_route_never_back():
+    # a route whose start and transit point the window had left sent the vehicle back to the route's start; on a
+    # generated test floor it flew back and forth between the two for 6,000 steps
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    maps = observed_up_to(raster, 190.0)
+    planner = build_planner("frontier")
+    planner.reset()
+    planner.act(maps, (2.0, 1.5, 0.0), 0)  # the window takes over the maps
+    assert planner._new_route(maps, (2.0, 1.5, 0.0), None)
+    first = planner._via
+    assert planner.route.path_xy_m[first, 0] < 24.0
+    planner._follow(maps, (60.0, 1.5, 0.0), force=True)  # the point and the route's start are behind the window
+    assert planner.route is not None and planner._via > first
+    assert 48.0 < planner.transit.via_xy_m[0] <= 72.0
+    # a route with no point in the window after the transit's has ended: the next step routes anew from the vehicle
+    planner.route = Route(planner.route.path_xy_m[: first + 1], planner.route.target_cells)
+    planner._via = first
+    planner._follow(maps, (100.0, 1.5, 0.0), force=True)
+    assert planner.route is None
+    for _ in range(14):  # the local planner first turns a full circle in its window, which holds no target
+        assert planner.act(maps, (100.0, 1.5, 0.0), 0) is not None
+        if planner.route is not None:
+            break
+    assert abs(planner.route.path_xy_m[0, 0] - 100.0) < 0.2 and planner.route.path_xy_m[-1, 0] > 188.0
 
 
 def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
