@@ -76,7 +76,8 @@ def centre_clearance_m(occupied: np.ndarray, resolution_m: float) -> np.ndarray:
     if not occupied.any():
         return np.full(occupied.shape, np.inf, dtype=np.float32)
     cells = cv2.distanceTransform((~occupied).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return cells * np.float32(resolution_m)
+    cells *= np.float32(resolution_m)  # in place: on a whole floor's map a copy is megabytes more for a moment
+    return cells
 
 
 def block_reduce(fine: np.ndarray, factor: int, combine: np.ufunc, pad_value: float | bool) -> np.ndarray:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from edge_explorer.plan.follow import FollowConfig, FreeSpace
-from edge_explorer.plan.graph import GraphConfig, PlanningGraph
-from edge_explorer.world.grid import UNKNOWN
+from edge_explorer.plan.graph import GraphConfig, PlanningGraph, Traversable
+from edge_explorer.world.grid import UNKNOWN, GridSpec
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 
@@ -36,3 +36,27 @@ def test_unknown_space_is_not_traversable(rooms):
     codes[:, rooms.grid.cell_of(2.5, 0.0)[1] :] = UNKNOWN  # the east room unseen
     graph = PlanningGraph.build(FreeSpace.from_codes(codes, rooms.grid), 0.325, (1.0, 1.5), GraphConfig())
     assert graph.node_at(3.0, 1.5) == -1 and graph.node_at(1.0, 1.5) >= 0
+
+
+def test_each_pair_of_neighbouring_nodes_is_joined_once_weighted_by_length_and_clearance():
+    rng = np.random.default_rng(5)
+    grid = GridSpec((0.0, 0.0), 0.1, (9, 11))
+    mask = rng.random(grid.shape) < 0.6
+    clearance = rng.uniform(0.0, 1.0, grid.shape).astype(np.float32)
+    config = GraphConfig()
+    graph = PlanningGraph.from_traversable(Traversable(grid, mask, clearance), config)
+    penalty = config.clearance_weight * np.clip(1.0 - clearance / config.clearance_soft_m, 0.0, 1.0)
+    expected = {}
+    for r, c in zip(*np.nonzero(mask), strict=True):
+        for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):
+            if 0 <= r + dr < grid.shape[0] and 0 <= c + dc < grid.shape[1] and mask[r + dr, c + dc]:
+                weight = 0.1 * np.hypot(dr, dc) * (1.0 + 0.5 * (penalty[r, c] + penalty[r + dr, c + dc]))
+                expected[(int(graph.node_of[r, c]), int(graph.node_of[r + dr, c + dc]))] = weight
+    matrix = graph.graph
+    coo = matrix.tocoo()
+    got = {(int(i), int(j)): float(v) for i, j, v in zip(coo.row, coo.col, coo.data, strict=True)}
+    assert got.keys() == expected.keys()  # each edge once, from its lower node id
+    assert np.allclose([got[e] for e in expected], list(expected.values()), rtol=1e-6)
+    assert matrix.has_canonical_format  # rows sorted, no duplicates: what the search expects
+    cost, _ = graph.search([0])
+    assert np.isfinite(cost[0]).sum() > 1
