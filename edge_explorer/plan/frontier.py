@@ -24,7 +24,7 @@ the start), then reports that it is done.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import cv2
@@ -126,6 +126,17 @@ class Goal:
             self.steps_since_progress = previous.steps_since_progress
             self.hovers = previous.hovers
 
+    def on_grid(self, old: GridSpec, new: GridSpec) -> Goal | None:
+        """This goal with its target cells (indices on ``old``) re-indexed on ``new``, a grid of the same
+        resolution whose cells line up with ``old``'s (a moved window); ``None`` when a target cell lies off
+        ``new``. The path is in metres and carries over as it is."""
+        rows, cols = np.divmod(self.target_cells, old.shape[1])
+        rows = rows + int(round((old.origin_xy[1] - new.origin_xy[1]) / new.resolution_m))
+        cols = cols + int(round((old.origin_xy[0] - new.origin_xy[0]) / new.resolution_m))
+        if not new.contains(rows, cols).all():
+            return None
+        return replace(self, target_cells=rows * new.shape[1] + cols)
+
 
 class View:
     """What a planner derives from the observed maps at one step; the graph is built only if a planner asks."""
@@ -201,12 +212,17 @@ class GoalPlanner:
         over when the window moves."""
         return {} if self._dropped is None else {"dropped": self._dropped}
 
-    def remember(self, memory: dict[str, np.ndarray]) -> None:
-        """Take ``memory`` (:meth:`memory`'s masks on the grid of the next maps) and forget the goal, whose target
-        cells are indices on the old grid."""
+    def goal_on(self, old: GridSpec, new: GridSpec) -> Goal | None:
+        """The goal being flown with its target cells on ``new`` (:meth:`Goal.on_grid`), for :meth:`remember`;
+        ``None`` when there is none or it does not carry over."""
+        return None if self._goal is None else self._goal.on_grid(old, new)
+
+    def remember(self, memory: dict[str, np.ndarray], goal: Goal | None = None) -> None:
+        """Take ``memory`` (:meth:`memory`'s masks on the grid of the next maps) and ``goal`` (:meth:`goal_on`'s
+        answer on that grid; ``None``: replan at the next step)."""
         self._dropped = memory.get("dropped")
-        self._goal = None
-        self._last_targets = None
+        self._goal = goal
+        self._last_targets = None if goal is None else goal.target_cells
 
     def targets(self, low: np.ndarray, fused_low: np.ndarray | None) -> np.ndarray:
         """bool, ``low``'s shape: the cells this planner explores towards on the observed 0.20 m map ``low`` (and

@@ -257,8 +257,8 @@ class PredictiveFrontier(GoalPlanner):
             memory["committed"] = self._committed
         return memory
 
-    def remember(self, memory: dict[str, np.ndarray]) -> None:
-        super().remember(memory)
+    def remember(self, memory: dict[str, np.ndarray], goal: Goal | None = None) -> None:
+        super().remember(memory, goal)
         self._committed = memory.get("committed")
 
     def targets(self, low: np.ndarray, fused_low: np.ndarray | None) -> np.ndarray:

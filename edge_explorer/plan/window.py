@@ -9,7 +9,9 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
   vehicle, a copy on its own grid, so building its free space, graph and goals costs the same on a 270 m floor as
   on a 30 m one. The window stays put until the vehicle is ``recentre_m`` from where the window would centre it; it
   then moves, and the planner's memory on the grid (dropped and committed targets, :meth:`GoalPlanner.memory`) is
-  kept on the whole map and handed back cropped to the new window. The planner replans after a move.
+  kept on the whole map and handed back cropped to the new window, and so is its goal while its target lies in
+  the new window (a planner that replanned after every move could turn to a nearer target each time and fly
+  back and forth between two windows: a generated test floor ran to the step cap that way).
 * **Global layer.** When the planner has nothing left in its window, the route layer (:mod:`edge_explorer.plan.
   route`) finds the nearest target the planner would explore (:meth:`GoalPlanner.targets`: the observed frontier,
   or the fused one for the predictive planners) outside the window along the observed 0.20 m map. The vehicle flies
@@ -285,13 +287,16 @@ class WindowedPlanner:
             self._dropped = np.zeros(grid.shape, dtype=bool)
             self._routed = np.zeros(grid.shape, dtype=np.uint8)
         wanted = place_window(grid, pose[:2], self.config.size_m)
+        goal = None
         if self.window is not None:
             shift = max(abs(wanted.row0 - self.window.row0), abs(wanted.col0 - self.window.col0))
             if wanted == self.window or (not force and shift * grid.resolution_m < self.config.recentre_m):
                 return False
             self._park()
+            goal = self.local.goal_on(self.window.grid(grid), wanted.grid(grid))
         self.window = wanted
-        self.local.remember({k: np.ascontiguousarray(v[wanted.slices()]) for k, v in self._memory.items()})
+        memory = {k: np.ascontiguousarray(v[wanted.slices()]) for k, v in self._memory.items()}
+        self.local.remember(memory, goal)
         self.transit.remember({})
         if self.route is not None and not self._lead(self.route, onward_only=True):
             self.route = None

@@ -10,7 +10,7 @@ from edge_explorer.mapping.observed import ObservedMaps, coarsen_codes
 from edge_explorer.plan.follow import remaining_path_m
 from edge_explorer.plan.frontier import Goal, NearestFrontier, frontier_mask
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
-from edge_explorer.world.grid import FREE, LOW_RES_M, OCCUPIED, UNKNOWN, resolution_factor
+from edge_explorer.world.grid import FREE, LOW_RES_M, OCCUPIED, UNKNOWN, GridSpec, resolution_factor
 from edge_explorer.world.raster import rasterize
 from tests.conftest import two_room_plan
 
@@ -176,3 +176,17 @@ def test_a_commanded_hover_is_not_a_collision(rooms, monkeypatch):
     assert planner._blocked == {}
     free_choice = NearestFrontier().act(maps, pose, Action.HOVER)
     assert planner.act(maps, pose, Action.HOVER) == free_choice
+
+
+def test_a_goal_moved_to_a_shifted_grid_keeps_its_targets_in_metres_and_is_lost_off_it():
+    old = GridSpec((2.0, 1.0), 0.2, (4, 5))
+    new = GridSpec((2.4, 0.8), 0.2, (6, 6))  # its origin two columns after old's and one row before
+    goal = Goal(np.array([[2.1, 1.1], [2.9, 1.5]]), 0.5, np.array([1 * 5 + 3, 2 * 5 + 4]), 0.5, hovers=2)
+    moved = goal.on_grid(old, new)
+    assert moved is not None and moved.hovers == 2 and moved.done_fraction == 0.5
+    np.testing.assert_array_equal(moved.path_xy_m, goal.path_xy_m)
+    for before, after in zip(goal.target_cells, moved.target_cells, strict=True):
+        x, y = old.center_of(*divmod(int(before), 5))
+        assert tuple(int(v) for v in new.cell_of(x, y)) == divmod(int(after), 6)
+    off = Goal(goal.path_xy_m, 0.5, np.array([1 * 5 + 1]))  # old column 1 is new column −1
+    assert off.on_grid(old, new) is None

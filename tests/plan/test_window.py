@@ -206,6 +206,26 @@ def test_when_the_window_left_the_transits_point_it_leads_on_along_the_route_nev
     assert abs(planner.route.path_xy_m[0, 0] - 100.0) < 0.2 and planner.route.path_xy_m[-1, 0] > 188.0
 
 
+def test_a_window_move_keeps_the_local_planners_goal_while_its_target_is_in_the_new_window():
+    # a planner that replanned after every move could turn to a nearer target each time: on a generated test floor
+    # it flew back and forth between two windows to the step cap
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    maps = observed_up_to(raster, 30.0)
+    planner = build_planner("frontier")
+    planner.reset()
+    assert planner.act(maps, (20.0, 1.5, 0.0), 0) is not None
+    first, goal = planner.window, planner.local._goal
+    target_xy = first.grid(maps.low_grid).center_of(*np.divmod(goal.target_cells, first.shape[1]))
+    replans = planner.local.replans
+    assert planner.act(maps, (25.0, 1.5, 0.0), 0) is not None
+    assert planner.window.col0 > first.col0 and planner.local.replans == replans  # moved, and flies on
+    kept = planner.local._goal
+    moved_xy = planner.window.grid(maps.low_grid).center_of(*np.divmod(kept.target_cells, planner.window.shape[1]))
+    np.testing.assert_allclose(moved_xy, target_xy)
+    assert planner.act(maps, (50.0, 1.5, 0.0), 0) is not None  # the target left the window: a new goal
+    assert planner.local.replans == replans + 1
+
+
 def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
     # two corridors side by side, split by a 0.1 m wall open at its east end: the point lies across the wall from
     # the vehicle, so the transit must fly round (it once flew to the near side, 1 m away, and back)
