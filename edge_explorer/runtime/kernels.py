@@ -77,7 +77,9 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     maps = GrowingMaps(x_m, y_m, z_range, FusionConfig(), GrowthConfig(window_m=12.0, start_m=2.0), band)
     maps.fuse(depth_m, intrinsics, pose.position_m, pose.rotation_map_from_optical(), 0.0)
     maps.ensure_covers(x_m + 8.0, y_m)  # a growth and a move of the 0.05 m window (its shift kernel)
-    high, high_grid, low, low_grid = maps.project()
+    maps.project()  # composes the whole 0.05 m map …
+    maps.mark_flown(x_m, y_m, 0.2)
+    high, high_grid, low, low_grid = maps.project()  # … then the window's and the flown cells in place
     coarse = raster.coarsened(LOW_RES_M)
     truth, interior = coarse.truth_codes(), coarse.interior
     shape = truth.shape

@@ -157,3 +157,28 @@ def test_the_flown_footprint_grows_with_the_maps():
 def test_a_window_too_small_for_the_sensor_is_refused():
     with pytest.raises(ValueError, match="window"):
         GrowingMaps(0.0, 0.0, Z_RANGE, growth=GrowthConfig(window_m=8.0))
+
+
+def test_each_projection_equals_a_whole_composition_while_the_maps_grow_and_the_window_moves():
+    """project() composes only the window and the newly flown cells between calls; at every call the map equals
+    the seen map, the window and the footprint composed whole, through growths, moves of the window and flights
+    back over flown cells."""
+    maps = GrowingMaps(0.0, 0.0, Z_RANGE)
+    xs = np.concatenate([np.arange(0.0, 30.0, 0.5), np.arange(30.0, 10.0, -0.5)])
+    recentrings = []
+    for i, x in enumerate(xs):
+        pose = CameraPose(float(x), 0.03, 1.7, 0.0 if i < 60 else math.pi)
+        maps.fuse(corridor_depth(pose), CAMERA, pose.position_m, pose.rotation_map_from_optical(), 0.1 * i)
+        maps.mark_flown(float(x), 0.03, 0.2)
+        if i % 3:
+            continue
+        recentrings.append(maps.recentrings)
+        high, grid, _, _ = maps.project()
+        window, window_grid = project(maps.high, HeightBand())
+        expected = maps.seen.copy()
+        laid = align_to_grid(window, window_grid, grid)
+        expected[laid != UNKNOWN] = laid[laid != UNKNOWN]
+        expected[(expected == UNKNOWN) & (maps.flown != 0)] = FREE
+        np.testing.assert_array_equal(high, expected)
+    assert maps.growths >= 1 and maps.recentrings >= 2
+    assert sum(a == b for a, b in zip(recentrings, recentrings[1:], strict=False)) > 10  # in place, mostly
