@@ -15,6 +15,7 @@ from edge_explorer.plan.window import (
     WindowConfig,
     WindowedPlanner,
     crop_maps,
+    keep_in_window,
     moved_mask,
     place_window,
 )
@@ -224,6 +225,33 @@ def test_a_window_move_keeps_the_local_planners_goal_while_its_target_is_in_the_
     np.testing.assert_allclose(moved_xy, target_xy)
     assert planner.act(maps, (50.0, 1.5, 0.0), 0) is not None  # the target left the window: a new goal
     assert planner.local.replans == replans + 1
+
+
+def test_a_window_move_is_shifted_to_keep_the_goals_target_while_the_vehicle_stays_well_inside():
+    # a path that led away from its target (round a wall) took the centred window with it and lost the goal at the
+    # window's edge; Nearest Frontier then chose a target the other way round the wall and looped for 5,000 steps
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    maps = observed_up_to(raster, 30.0)
+    planner = build_planner("frontier")
+    planner.reset()
+    assert planner.act(maps, (20.0, 1.5, 0.0), 0) is not None
+    target_x = planner.local._goal.path_xy_m[-1, 0]
+    assert target_x > 28.0  # the frontier at 30 m, beyond a window centred on 16 m (4–28 m)
+    assert planner.act(maps, (16.0, 1.5, 0.0), 0) is not None
+    window = planner.window.grid(maps.low_grid)
+    x0, x1 = window.origin_xy[0], window.origin_xy[0] + window.size_xy_m[0]
+    assert x0 < 16.0 - 4.0 + 1e-6 and x1 > target_x  # moved west, but only as far as keeps the target
+    assert 16.0 - x0 <= 24.0 - 8.0 + 0.2  # the vehicle as far inside as the recentring rule allows
+    assert planner.route is None  # the local planner still has its target in view: no global route
+
+
+def test_keep_in_window_shifts_the_least_and_gives_up_when_the_vehicle_would_be_too_near_the_edge():
+    window = Window(0, 10, (10, 20))
+    shape = (10, 100)
+    assert keep_in_window(window, shape, np.array([33]), (5, 20), 4) == Window(0, 14, (10, 20))  # col 33 now last
+    assert keep_in_window(window, shape, np.array([12]), (5, 20), 4) == window  # already inside
+    assert keep_in_window(window, shape, np.array([45]), (5, 20), 4) == window  # the vehicle would be off it
+    assert keep_in_window(window, shape, np.array([99]), (5, 95), 2) == Window(0, 80, (10, 20))  # on the map
 
 
 def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
