@@ -207,14 +207,19 @@ def test_when_the_window_left_the_transits_point_it_leads_on_along_the_route_nev
     assert abs(planner.route.path_xy_m[0, 0] - 100.0) < 0.2 and planner.route.path_xy_m[-1, 0] > 188.0
 
 
-def test_a_window_move_keeps_the_local_planners_goal_while_its_target_is_in_the_new_window():
-    # a planner that replanned after every move could turn to a nearer target each time: on a generated test floor
-    # it flew back and forth between two windows to the step cap
-    raster = rasterize(corridor_plan(200.0), 0.05)
-    maps = observed_up_to(raster, 30.0)
+def flying_to_the_frontier_at_30_m() -> tuple[ObservedMaps, WindowedPlanner]:
+    """A 200 m corridor observed up to 30 m, and Nearest Frontier in its hierarchy after its first step at 20 m."""
+    maps = observed_up_to(rasterize(corridor_plan(200.0), 0.05), 30.0)
     planner = build_planner("frontier")
     planner.reset()
     assert planner.act(maps, (20.0, 1.5, 0.0), 0) is not None
+    return maps, planner
+
+
+def test_a_window_move_keeps_the_local_planners_goal_while_its_target_is_in_the_new_window():
+    # a planner that replanned after every move could turn to a nearer target each time: on a generated test floor
+    # it flew back and forth between two windows to the step cap
+    maps, planner = flying_to_the_frontier_at_30_m()
     first, goal = planner.window, planner.local._goal
     target_xy = first.grid(maps.low_grid).center_of(*np.divmod(goal.target_cells, first.shape[1]))
     replans = planner.local.replans
@@ -230,11 +235,7 @@ def test_a_window_move_keeps_the_local_planners_goal_while_its_target_is_in_the_
 def test_a_window_move_is_shifted_to_keep_the_goals_target_while_the_vehicle_stays_well_inside():
     # a path that led away from its target (round a wall) took the centred window with it and lost the goal at the
     # window's edge; Nearest Frontier then chose a target the other way round the wall and looped for 5,000 steps
-    raster = rasterize(corridor_plan(200.0), 0.05)
-    maps = observed_up_to(raster, 30.0)
-    planner = build_planner("frontier")
-    planner.reset()
-    assert planner.act(maps, (20.0, 1.5, 0.0), 0) is not None
+    maps, planner = flying_to_the_frontier_at_30_m()
     target_x = planner.local._goal.path_xy_m[-1, 0]
     assert target_x > 28.0  # the frontier at 30 m, beyond a window centred on 16 m (4–28 m)
     assert planner.act(maps, (16.0, 1.5, 0.0), 0) is not None
