@@ -15,10 +15,13 @@ larger than the hard margin, and a 0.05 m cell boundary can lie anywhere within 
 mean motion therefore ends steps where the next, unavoidable, drift enters the NON_FLIGHT band (measured: 3–18
 collisions per 100 test-split flights). So it prefers sequences whose first step is *robust*: that step and its
 drift, shifted ``noise_sigmas`` standard deviations of the table's noise in any of 8 directions, stay out of the
-observed NON_FLIGHT band. A sequence whose first step is not robust costs ``fragile_cost_m`` more, so it wins only
-where it gains more than that — in a doorway, where the only robust steps are turns in place that get nowhere. (A
-strict preference left the vehicle turning right and left at a door jamb for 20 steps, the drift of each turn
-walking it into the jamb 3 times: floor-test-00001, session 49.) ``noise_sigmas = 0`` turns the preference off.
+observed NON_FLIGHT band. Where the vehicle keeps the safe distance, a sequence whose first step is not robust costs
+``fragile_cost_m`` more, so it wins only where it gains more than that — in a doorway, where the only robust steps
+are turns in place that get nowhere (a strict preference left the vehicle turning right and left at a door jamb for
+20 steps, the drift of each turn walking it into the jamb 3 times: floor-test-00001). A vehicle that noise or a
+wall seen late has already put closer than the safe distance takes a robust step whenever there is one (a fragile
+step out of there brushed a wall seen one step before: kth_50010536_PLAN3_0). Only if no first step is robust does
+it fall back to the mean-safe ones. ``noise_sigmas = 0`` turns the preference off.
 
 Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
 observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at
@@ -74,7 +77,7 @@ class FollowConfig:
     comfort_distance_m: float = 0.5
     escape_weight: float = 20.0  # cost per metre that a pose lies inside the caution margin: get out first
     noise_sigmas: float = 3.0  # preferred first steps keep out of the NON_FLIGHT band under this much motion noise
-    fragile_cost_m: float = 1.0  # added to a sequence whose first step is not robust to that noise
+    fragile_cost_m: float = 1.0  # added to a sequence whose first step is not robust, where the vehicle is safe
     # hard: mean motions keep the centre this far from cells the sensor has not seen (0: not checked). The camera
     # sees ±43° ahead, so a turn-and-forward can sweep the body over space it never saw, and a wall may be there.
     unseen_clearance_m: float = FLIGHT_CLEARANCE.robot_radius_m
@@ -249,7 +252,8 @@ def choose_action(
 
     Returns ``None`` once the vehicle has :func:`arrived`. Among the two-action sequences whose mean motions are
     safe (see the module docstring) it picks the first action of the one with the lowest summed pursuit cost of its
-    two poses, plus ``fragile_cost_m`` if its first step is not robust to motion noise. Hover
+    two poses, plus ``fragile_cost_m`` if its first step is not robust to motion noise (or, closer than the safe
+    distance, after every sequence whose first step is robust). Hover
     when no sequence is safe (a state the follower's own choices never lead to). ``blocked_actions`` are first
     actions known to be blocked from this very pose (a collision the map does not explain: the caller's memory).
     """
@@ -285,7 +289,9 @@ def choose_action(
 
     first = {a: None if a in blocked_actions else safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
     robust_first = {a: end is not None and within_noise(a, end) for a, end in first.items()}
-    best_action, best_cost = int(Action.HOVER), math.inf
+    # closer than the safe distance a robust step wins outright: (1, cost) sorts after every (0, cost)
+    strict = free.clearance_at(pose[0], pose[1]) < config.safe_distance_m
+    best_action, best_key = int(Action.HOVER), (1, math.inf)
     for a1, a2 in product(range(NUM_ACTIONS), repeat=2):
         p1 = first[a1]
         p2 = safe_step(p1, a1, a2) if p1 is not None else None
@@ -293,12 +299,14 @@ def choose_action(
             continue
         # Both poses count, so progress now beats the same progress later (no waiting for a better next step);
         # hover costs a little extra so that an equally good motion wins.
-        cost = (1e-3 if a1 == Action.HOVER else 0.0) + (0.0 if robust_first[a1] else config.fragile_cost_m)
+        fragile = not robust_first[a1]
+        cost = (1e-3 if a1 == Action.HOVER else 0.0) + (config.fragile_cost_m if fragile and not strict else 0.0)
         for p in (p1, p2):  # and keep off the walls where there is room: motion noise then cannot reach them
             cost += _pose_cost(p, target, target_yaw_rad, config)
             clearance = free.clearance_at(p[0], p[1])
             cost += config.clearance_weight * max(0.0, config.comfort_distance_m - clearance)
             cost += config.escape_weight * max(0.0, config.caution_distance_m - clearance)
-        if cost < best_cost:
-            best_action, best_cost = a1, cost
+        key = (int(fragile and strict), cost)
+        if key < best_key:
+            best_action, best_key = a1, key
     return best_action
