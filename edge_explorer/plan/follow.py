@@ -13,15 +13,10 @@ Looking two steps ahead lets it brake or start a turn early, as the momentum req
 Motion noise (docs/design.md §6: a forward step's position error has a standard deviation of about 3.5 cm per axis) is
 larger than the hard margin, and a 0.05 m cell boundary can lie anywhere within it; a follower that only checks the
 mean motion therefore ends steps where the next, unavoidable, drift enters the NON_FLIGHT band (measured: 3–18
-collisions per 100 test-split flights). So it prefers sequences whose first step is *robust*: that step and its
-drift, shifted ``noise_sigmas`` standard deviations of the table's noise in any of 8 directions, stay out of the
-observed NON_FLIGHT band. Where the vehicle keeps the safe distance, a sequence whose first step is not robust costs
-``fragile_cost_m`` more, so it wins only where it gains more than that — in a doorway, where the only robust steps
-are turns in place that get nowhere (a strict preference left the vehicle turning right and left at a door jamb for
-20 steps, the drift of each turn walking it into the jamb 3 times: floor-test-00001). A vehicle that noise or a
-wall seen late has already put closer than the safe distance takes a robust step whenever there is one (a fragile
-step out of there brushed a wall seen one step before: kth_50010536_PLAN3_0). Only if no first step is robust does
-it fall back to the mean-safe ones. ``noise_sigmas = 0`` turns the preference off.
+collisions per 100 test-split flights). So among the safe sequences it prefers those whose first step is *robust*:
+that step and its drift, shifted ``noise_sigmas`` standard deviations of the table's noise in any of 8 directions,
+stay out of the observed NON_FLIGHT band. Only if no first step is robust (tight passages, or noise already put the
+vehicle close to a wall) does it fall back to the mean-safe ones (``noise_sigmas = 0`` turns the preference off).
 
 Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
 observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at
@@ -77,7 +72,6 @@ class FollowConfig:
     comfort_distance_m: float = 0.5
     escape_weight: float = 20.0  # cost per metre that a pose lies inside the caution margin: get out first
     noise_sigmas: float = 3.0  # preferred first steps keep out of the NON_FLIGHT band under this much motion noise
-    fragile_cost_m: float = 1.0  # added to a sequence whose first step is not robust, where the vehicle is safe
     # hard: mean motions keep the centre this far from cells the sensor has not seen (0: not checked). The camera
     # sees ±43° ahead, so a turn-and-forward can sweep the body over space it never saw, and a wall may be there.
     unseen_clearance_m: float = FLIGHT_CLEARANCE.robot_radius_m
@@ -87,13 +81,10 @@ class FollowConfig:
             raise ValueError("lookahead_m, goal_tolerance_m and yaw_tolerance_rad must be positive")
         weights = (self.heading_weight_m_per_rad, self.clearance_weight, self.escape_weight)
         if (
-            min(*weights, self.robot_radius_m, self.safety_margin_m, self.noise_sigmas, self.fragile_cost_m) < 0
-            or self.unseen_clearance_m < 0
+            min(*weights, self.robot_radius_m, self.safety_margin_m, self.noise_sigmas, self.unseen_clearance_m) < 0
             or self.caution_margin_m < self.safety_margin_m
         ):
-            raise ValueError(
-                "the weights, distances, noise_sigmas and fragile_cost_m must be ≥ 0, caution_margin_m ≥ safety"
-            )
+            raise ValueError("the weights, robot_radius_m and safety_margin_m must be ≥ 0, caution_margin_m ≥ safety")
 
     @property
     def safe_distance_m(self) -> float:
@@ -252,8 +243,7 @@ def choose_action(
 
     Returns ``None`` once the vehicle has :func:`arrived`. Among the two-action sequences whose mean motions are
     safe (see the module docstring) it picks the first action of the one with the lowest summed pursuit cost of its
-    two poses, plus ``fragile_cost_m`` if its first step is not robust to motion noise (or, closer than the safe
-    distance, after every sequence whose first step is robust). Hover
+    two poses, preferring sequences whose first step is robust to motion noise. Hover
     when no sequence is safe (a state the follower's own choices never lead to). ``blocked_actions`` are first
     actions known to be blocked from this very pose (a collision the map does not explain: the caller's memory).
     """
@@ -289,9 +279,8 @@ def choose_action(
 
     first = {a: None if a in blocked_actions else safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
     robust_first = {a: end is not None and within_noise(a, end) for a, end in first.items()}
-    # closer than the safe distance a robust step wins outright: (1, cost) sorts after every (0, cost)
-    strict = free.clearance_at(pose[0], pose[1]) < config.safe_distance_m
-    best_action, best_key = int(Action.HOVER), (1, math.inf)
+    best_action, best_cost = int(Action.HOVER), math.inf
+    best_robust = False
     for a1, a2 in product(range(NUM_ACTIONS), repeat=2):
         p1 = first[a1]
         p2 = safe_step(p1, a1, a2) if p1 is not None else None
@@ -299,14 +288,12 @@ def choose_action(
             continue
         # Both poses count, so progress now beats the same progress later (no waiting for a better next step);
         # hover costs a little extra so that an equally good motion wins.
-        fragile = not robust_first[a1]
-        cost = (1e-3 if a1 == Action.HOVER else 0.0) + (config.fragile_cost_m if fragile and not strict else 0.0)
+        cost = 1e-3 if a1 == Action.HOVER else 0.0
         for p in (p1, p2):  # and keep off the walls where there is room: motion noise then cannot reach them
             cost += _pose_cost(p, target, target_yaw_rad, config)
             clearance = free.clearance_at(p[0], p[1])
             cost += config.clearance_weight * max(0.0, config.comfort_distance_m - clearance)
             cost += config.escape_weight * max(0.0, config.caution_distance_m - clearance)
-        key = (int(fragile and strict), cost)
-        if key < best_key:
-            best_action, best_key = a1, key
+        if (robust_first[a1], -cost) > (best_robust, -best_cost):
+            best_action, best_cost, best_robust = a1, cost, robust_first[a1]
     return best_action
