@@ -34,7 +34,7 @@ import cv2
 import numba
 import numpy as np
 
-from edge_explorer.mapping.projection import HeightBand, project
+from edge_explorer.mapping.projection import HeightBand, project, project_box
 from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
 from edge_explorer.world.grid import CELL_DTYPE, FREE, HIGH_RES_M, LOW_RES_M, UNKNOWN, GridSpec
 
@@ -89,6 +89,11 @@ class GrowingMaps(VoxelMaps):
         self.flown = np.zeros((0, 0), dtype=np.uint8)  # 1 where the vehicle's body has been
         self._composed: np.ndarray | None = None  # project()'s 0.05 m map, kept current in place (None: rebuild)
         self._flown_box: tuple[int, int, int, int] | None = None  # rows, cols [r0, r1) × [c0, c1) flown since
+        # project()'s projections of the window and of the 0.20 m map, kept current in place (None: rebuild), and
+        # the box (x0, x1, y0, y1 in metres) that frames may have written since it last ran
+        self._window_codes: np.ndarray | None = None
+        self._low_codes: np.ndarray | None = None
+        self._written: tuple[float, float, float, float] | None = None
         self.growths = 0
         self.recentrings = 0
         row, col = self.low.index_of(x_m, y_m, anchor[2])[:2]
@@ -101,6 +106,12 @@ class GrowingMaps(VoxelMaps):
     def _before_insert(self, position_m: np.ndarray) -> None:
         x, y = float(position_m[0]), float(position_m[1])
         self.ensure_covers(x, y)
+        # a frame writes only voxels within sensor range of its camera (module docstring), all inside reach_m
+        box = (x - self.reach_m, x + self.reach_m, y - self.reach_m, y + self.reach_m)
+        if self._written is not None:
+            old = self._written
+            box = (min(box[0], old[0]), max(box[1], old[1]), min(box[2], old[2]), max(box[3], old[3]))
+        self._written = box
 
     def ensure_covers(self, x_m: float, y_m: float) -> None:
         """Grow the 0.20 m map and move the 0.05 m window so both hold everything a camera at (x, y) can see."""
@@ -137,6 +148,7 @@ class GrowingMaps(VoxelMaps):
         self.seen = np.full((rows * f, cols * f), UNKNOWN, dtype=CELL_DTYPE)
         self.flown = np.zeros((rows * f, cols * f), dtype=np.uint8)
         self._composed = None
+        self._low_codes = None
         if old_grid is not None:
             _paste(self.seen, self.grid, old_seen, old_grid, keep_unknown=False)
             _paste(self.flown, self.grid, old_flown, old_grid, keep_unknown=False)
@@ -148,6 +160,7 @@ class GrowingMaps(VoxelMaps):
         """Centre the 0.05 m window on (x, y) (on whole 0.20 m cells), folding its projection into :attr:`seen`."""
         if fold:
             self.fold()
+        self._window_codes = None
         n = _cells(self.growth.window_m, LOW_RES_M) * self.factor
         row, col = self.low.index_of(x_m, y_m, self.region.origin_xyz_m[2])[:2]
         lr0, lc0 = self.low.offset_cells
@@ -200,7 +213,8 @@ class GrowingMaps(VoxelMaps):
         and then the whole map is composed anew), so a call composes those alone, at a cost that does not grow with
         the box (composing the whole 0.05 m map of a 290 × 60 m box, 7 M cells, takes ~4–7 ms on this project's
         2-core machine)."""
-        window, window_grid = project(self.high, self.band)
+        window, window_grid, window_box = self._projected(self.high, self._window_codes)
+        self._window_codes = window
         grid = self.grid
         row0 = int(round((window_grid.origin_xy[1] - grid.origin_xy[1]) / HIGH_RES_M))
         col0 = int(round((window_grid.origin_xy[0] - grid.origin_xy[0]) / HIGH_RES_M))
@@ -209,15 +223,35 @@ class GrowingMaps(VoxelMaps):
             self._composed = np.empty_like(self.seen)
             boxes = [(0, rows, 0, cols)]
         else:
-            boxes = [(row0, row0 + window.shape[0], col0, col0 + window.shape[1])]
+            boxes = [(row0 + window_box[0], row0 + window_box[1], col0 + window_box[2], col0 + window_box[3])]
             if self._flown_box is not None:
                 boxes.append(self._flown_box)
         for r0, r1, c0, c1 in boxes:
             box = (max(r0, 0), min(r1, rows), max(c0, 0), min(c1, cols))
             _compose(self.seen, self.flown, window, row0, col0, self._composed, *box)
         self._flown_box = None
-        low, low_grid = project(self.low, self.band)
-        return self._composed, grid, low, low_grid
+        low, low_grid, _ = self._projected(self.low, self._low_codes)
+        self._low_codes = low
+        self._written = None
+        return self._composed, grid, low.copy(), low_grid
+
+    def _projected(
+        self, vox: VoxelGrid, codes: np.ndarray | None
+    ) -> tuple[np.ndarray, GridSpec, tuple[int, int, int, int]]:
+        """(``vox``'s projection, its grid, the box [r0, r1) × [c0, c1) of cells brought up to date): ``codes``
+        (the previous call's, or None) reprojected where frames wrote since (:attr:`_written`), or a new
+        projection."""
+        grid = vox.grid
+        if codes is None or codes.shape != grid.shape:
+            codes, grid = project(vox, self.band)
+            return codes, grid, (0, grid.shape[0], 0, grid.shape[1])
+        if self._written is None:
+            return codes, grid, (0, 0, 0, 0)
+        x0, x1, y0, y1 = self._written
+        (r0, c0), (r1, c1) = grid.cell_of(x0, y0), grid.cell_of(x1, y1)
+        box = (max(int(r0), 0), min(int(r1) + 1, grid.shape[0]), max(int(c0), 0), min(int(c1) + 1, grid.shape[1]))
+        project_box(vox, self.band, codes, box[:2], box[2:])
+        return codes, grid, box
 
     def nbytes(self) -> int:
         """Bytes of every map array (both voxel maps with their frame stamps, the persistent 2-D maps)."""

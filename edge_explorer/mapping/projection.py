@@ -57,14 +57,40 @@ def project(voxels: VoxelGrid, band: HeightBand = HeightBand()) -> tuple[np.ndar
     The same rule as :func:`project_states`, column by column in one compiled pass over the band's layers (no
     per-voxel temporaries: the daemon projects its 0.05 m map at every decision).
     """
+    codes = np.empty(voxels.shape[:2], dtype=CELL_DTYPE)
+    project_box(voxels, band, codes, (0, codes.shape[0]), (0, codes.shape[1]))
+    return codes, voxels.grid
+
+
+def project_box(
+    voxels: VoxelGrid, band: HeightBand, codes: np.ndarray, rows: tuple[int, int], cols: tuple[int, int]
+) -> None:
+    """Bring ``codes`` (the shape of ``voxels``' columns) up to date over rows [rows[0], rows[1]) × columns
+    [cols[0], cols[1]) (clipped to the array), as :func:`project` gives them; the other cells are left as they are.
+    A map that knows where its voxels changed since its last projection reprojects only there
+    (:meth:`edge_explorer.mapping.growing.GrowingMaps.project`)."""
+    if codes.shape != voxels.shape[:2]:
+        raise ValueError(f"codes of shape {codes.shape} do not hold the columns of a {voxels.shape} voxel map")
     z = voxels.layer_centers_m()
     layers = band.layers(z)
     # The layers below flight height are a prefix of the band's: layer centres ascend.
     below_flight = int(np.count_nonzero((z[layers] - voxels.resolution_m / 2) < band.flight_z_m))
-    codes = np.empty(voxels.shape[:2], dtype=CELL_DTYPE)
     first = int(layers[0]) if len(layers) else 0
-    _project_kernel(voxels.log_odds, first, len(layers), below_flight, voxels.threshold_logodds, UNKNOWN_LOGODDS, codes)
-    return codes, voxels.grid
+    r0, r1 = max(int(rows[0]), 0), min(int(rows[1]), codes.shape[0])
+    c0, c1 = max(int(cols[0]), 0), min(int(cols[1]), codes.shape[1])
+    _project_kernel(
+        voxels.log_odds,
+        first,
+        len(layers),
+        below_flight,
+        voxels.threshold_logodds,
+        UNKNOWN_LOGODDS,
+        codes,
+        r0,
+        r1,
+        c0,
+        c1,
+    )
 
 
 # The kernel finds unseen voxels by a column's minimum: unknown must be the smallest log-odds value there is.
@@ -73,9 +99,10 @@ _INT16_MAX = np.iinfo(np.int16).max
 
 
 @numba.njit(cache=True, nogil=True)
-def _project_kernel(log_odds, first, count, below_flight, threshold, unknown, codes):
+def _project_kernel(log_odds, first, count, below_flight, threshold, unknown, codes, r0, r1, c0, c1):
     """codes[i, j] ← the column rule over layers first … first + count − 1 of log_odds[i, j] (contiguous, as
-    :meth:`HeightBand.layers` returns them), the first ``below_flight`` of them below flight height.
+    :meth:`HeightBand.layers` returns them), the first ``below_flight`` of them below flight height, for rows
+    [r0, r1) and columns [c0, c1).
 
     Two reductions per column instead of a branch per voxel: some band voxel is occupied iff the band's maximum is
     ≥ ``threshold`` and not ``unknown`` (which is the int16 minimum), and some layer below flight height is unseen
@@ -84,9 +111,8 @@ def _project_kernel(log_odds, first, count, below_flight, threshold, unknown, co
     or occupied is unpredictable) took 2–3 times as long on the daemon's 0.05 m map.
     tests/mapping/test_projection_reference.py keeps it and checks that both give the same codes.
     """
-    rows, cols = codes.shape
-    for i in range(rows):
-        for j in range(cols):
+    for i in range(r0, r1):
+        for j in range(c0, c1):
             column = log_odds[i, j, first : first + count]
             highest = np.int16(unknown)
             for k in range(count):

@@ -160,9 +160,9 @@ def test_a_window_too_small_for_the_sensor_is_refused():
 
 
 def test_each_projection_equals_a_whole_composition_while_the_maps_grow_and_the_window_moves():
-    """project() composes only the window and the newly flown cells between calls; at every call the map equals
-    the seen map, the window and the footprint composed whole, through growths, moves of the window and flights
-    back over flown cells."""
+    """project() reprojects only where frames wrote and composes only there and the newly flown cells between
+    calls; at every call both maps equal the seen map, the window and the footprint projected and composed whole,
+    and the 0.20 m map projected whole, through growths, moves of the window and flights back over flown cells."""
     maps = GrowingMaps(0.0, 0.0, Z_RANGE)
     xs = np.concatenate([np.arange(0.0, 30.0, 0.5), np.arange(30.0, 10.0, -0.5)])
     recentrings = []
@@ -173,7 +173,9 @@ def test_each_projection_equals_a_whole_composition_while_the_maps_grow_and_the_
         if i % 3:
             continue
         recentrings.append(maps.recentrings)
-        high, grid, _, _ = maps.project()
+        high, grid, low, low_grid = maps.project()
+        np.testing.assert_array_equal(low, project(maps.low, HeightBand())[0])
+        assert low_grid == maps.low.grid
         window, window_grid = project(maps.high, HeightBand())
         expected = maps.seen.copy()
         laid = align_to_grid(window, window_grid, grid)

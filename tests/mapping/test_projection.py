@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from edge_explorer.mapping.projection import HeightBand, align_to_grid, onto_grid, project
+from edge_explorer.mapping.projection import HeightBand, align_to_grid, onto_grid, project, project_box
 from edge_explorer.mapping.voxels import UNKNOWN_LOGODDS, FusionConfig, VoxelGrid, VoxelMaps, VoxelRegion
 from edge_explorer.sim.camera import DepthCamera
 from edge_explorer.vehicle.camera import CameraConfig, CameraPose
@@ -33,6 +33,26 @@ def test_column_rule() -> None:
     assert codes.dtype == np.int8 and grid == vox.grid
     assert list(codes[0, :7]) == [FREE, OCCUPIED, FREE, UNKNOWN, UNKNOWN, UNKNOWN, FREE]
     assert np.all(codes[1:] == UNKNOWN)
+
+
+def test_project_box_updates_its_box_alone() -> None:
+    """A box's cells come out as a whole projection gives them; cells outside keep what they held (a map that
+    knows where its voxels changed reprojects only there); a box past the edge is clipped; codes of another shape
+    are refused."""
+    vox = VoxelGrid(VoxelRegion((0.0, 0.0, -0.1), (0.4, 0.4, 3.4)), 0.05)
+    z = vox.layer_centers_m()
+    vox.log_odds[:, :, (z >= 1.5) & (z < 2.5)] = FREE_L
+    vox.log_odds[2:4, 2:4, np.argmin(abs(z - 2.0))] = OCC_L
+    codes = np.full(vox.shape[:2], 7, dtype=np.int8)
+    project_box(vox, HeightBand(), codes, (1, 3), (2, 20))
+    whole, _ = project(vox)
+    np.testing.assert_array_equal(codes[1:3, 2:], whole[1:3, 2:])
+    assert list(codes[1:3, 2:4].ravel()) == [FREE, FREE, OCCUPIED, OCCUPIED]
+    outside = np.ones(codes.shape, dtype=bool)
+    outside[1:3, 2:] = False
+    assert np.all(codes[outside] == 7)
+    with pytest.raises(ValueError, match="do not hold the columns"):
+        project_box(vox, HeightBand(), codes[1:], (0, 1), (0, 1))
 
 
 def test_height_band_must_contain_flight_height() -> None:
