@@ -355,7 +355,8 @@ def test_the_reserve_follows_the_measured_path_home_round_a_wall(clock):
 
 def test_the_return_plans_its_path_home_every_few_seconds_not_every_step(clock, monkeypatch):
     # the whole-map plan costs ~0.2 s on a 271 m floor: a step home follows the last path on a window around the
-    # vehicle, and the path is planned again after home_path_every_s
+    # vehicle, and the path is planned again after home_path_every_s, after a decision's waypoint is out
+    # (replan_home), not inside the step's own action
     from edge_explorer.mapping.observed import coarsen_codes
 
     high = np.full((200, 400), FREE, dtype=np.int8)  # 20 m × 10 m, all seen free
@@ -369,10 +370,15 @@ def test_the_return_plans_its_path_home_every_few_seconds_not_every_step(clock, 
     phases.finish_exploring("time limit")
     for _ in range(3):  # facing home along a free corridor: forward, on the first plan
         assert phases.home_action(maps, (18.0, 5.0, np.pi), int(Action.FORWARD)) == Action.FORWARD
+        phases.replan_home(maps, (18.0, 5.0, np.pi), clock.now)  # not due yet
         clock.now += 1.0
     assert len(plans) == 1
     clock.now += config.home_path_every_s
     assert phases.home_action(maps, (18.0, 5.0, np.pi), int(Action.FORWARD)) == Action.FORWARD
+    assert len(plans) == 1  # the step follows the old path (it still leads home) …
+    phases.replan_home(maps, (17.5, 5.0, np.pi), clock.now)
+    assert len(plans) == 2 and plans[-1] == (17.5, 5.0)  # … and the plan comes after its waypoint, from its start
+    phases.replan_home(maps, (17.0, 5.0, np.pi), clock.now + 1.0)
     assert len(plans) == 2
 
 

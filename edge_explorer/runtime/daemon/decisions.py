@@ -216,6 +216,8 @@ class DecisionPipeline:
         self.record.record_progress(now, odometry, maps, thresholded, phase, self.probabilities)
         if self.phases.phase == "exploring":  # the reserve's way home, off the frame-in → waypoint-out path
             self.phases.measure_way_home(maps, (odometry.x_m, odometry.y_m), now)
+        else:  # the return's periodic replan, off that path too
+            self.phases.replan_home(maps, pose, now)
         self.view = DecisionView(high, high_grid, low, low_grid, thresholded)
         log.debug(
             "decision %d: %s %s → (%.2f, %.2f)",

@@ -260,6 +260,15 @@ class FlightPhases:
     def _plan_home(self, maps: ObservedMaps, pose: tuple[float, float, float], now: float) -> None:
         self._home_path, self._home_path_s = self._path_home(maps, pose[:2]), now
 
+    def replan_home(self, maps: ObservedMaps, pose: tuple[float, float, float], now: float) -> None:
+        """While returning, plan the path home again from ``pose`` over ``maps`` when the last plan is
+        ``home_path_every_s`` old: run after the decision's waypoint is out (a plan over the whole observed map costs
+        ~0.1–0.2 s on a 271 m floor, ten decisions' latency budget), so the next decisions follow the new path."""
+        if self.state.phase != "returning" or self._home_path_s is None:
+            return
+        if now - self._home_path_s >= self.config.home_path_every_s:
+            self._plan_home(maps, pose, now)
+
     def measure_way_home(self, maps: ObservedMaps, xy_m: tuple[float, float], now: float) -> None:
         """Measure the path home from ``xy_m`` over the observed map — the path the return would fly now
         (:func:`~edge_explorer.plan.waypoint.path_home`) — for the reserve, at most every ``home_path_every_s``
@@ -281,14 +290,14 @@ class FlightPhases:
         """The next action along a path home over observed free space (after action ``previous``); None (and
         hovering) once there.
 
-        The path is planned over the whole observed map at most every ``home_path_every_s`` (about 0.2 s on a
-        271 m floor) and again whenever the follower would hover along an older one (a wall seen since may block
-        it); each step's follower reads only a ``FOLLOW_WINDOW_M`` square around the vehicle, so a step home costs
-        the same on any floor."""
+        The path is planned over the whole observed map at the first step home, again every ``home_path_every_s``
+        after a decision's waypoint is out (:meth:`replan_home`: about 0.2 s on a 271 m floor), and here whenever
+        the follower would hover along an older one (a wall seen since may block it); each step's follower reads only
+        a ``FOLLOW_WINDOW_M`` square around the vehicle, so a step home costs the same on any floor."""
         assert self.state.home_xy is not None and self._explore_end_s is not None
         cfg = self.config
         now = time.monotonic()
-        fresh = self._home_path_s is None or now - self._home_path_s >= cfg.home_path_every_s
+        fresh = self._home_path_s is None
         if fresh:
             self._plan_home(maps, pose, now)
         near = crop_maps(maps, place_window(maps.low_grid, pose[:2], FOLLOW_WINDOW_M))
