@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
@@ -120,7 +121,9 @@ class PlanningGraph:
         The sparse matrix is written row by row in its canonical form (each edge once, from its lower node id,
         sorted), the matrix a (source, target, weight) list makes once scipy has sorted it, without that list, and in
         float64, which :meth:`search` would otherwise convert it to on every search: on the map of a 110 m stretch of
-        a whole floor (the daemon's way home) the build's peak fell from 51 to 33 MB above what it keeps."""
+        a whole floor (the daemon's way home) the build's peak fell from 51 to 33 MB above what it keeps. Two compiled
+        passes over the grid write it (count, then fill): a dozen whole-array numpy passes took 8–17 ms of a slow
+        daemon decision on a 24 m window."""
         grid = traversable.grid
         node_of = np.full(grid.shape, -1, dtype=np.int64)
         cells = np.flatnonzero(traversable.mask)
@@ -128,30 +131,15 @@ class PlanningGraph:
         node_of.flat[cells] = np.arange(n)
         shortfall = np.clip(1.0 - traversable.clearance_m / config.clearance_soft_m, 0.0, 1.0)
         penalty = config.clearance_weight * shortfall
-        n_rows, n_cols = grid.shape
-        pairs = [  # per direction: the cells an edge leaves from, those it goes to, and where both are nodes
-            (
-                (slice(0, n_rows - di), slice(max(-dj, 0), n_cols - max(dj, 0))),
-                (slice(di, n_rows), slice(max(dj, 0), n_cols - max(-dj, 0))),
-            )
-            for di, dj in _NEIGHBOURS
-        ]
-        both = [(node_of[a] >= 0) & (node_of[b] >= 0) for a, b in pairs]
+        # An edge's weight is computed as numpy computes ``step × (1 + 0.5 (penalty_a + penalty_b))`` on arrays of
+        # the penalty's dtype (float32: Python floats take the array's type), so the kernel gets its constants in it.
+        constants = np.array([grid.resolution_m, grid.resolution_m * math.sqrt(2.0), 0.5, 1.0], dtype=penalty.dtype)
         index = np.int32 if 4 * n < 2**31 else np.int64  # scipy's own choice for at most 4 n edges
         indptr = np.zeros(n + 1, dtype=index)
-        for (a, _), edge in zip(pairs, both, strict=True):  # a node is the source of at most one edge per direction
-            indptr[node_of[a][edge] + 1] += 1
-        np.cumsum(indptr, out=indptr)
-        slot = indptr[:-1].copy()  # where each row's next edge goes
+        _count_edges(node_of, indptr)
         indices = np.empty(int(indptr[-1]), dtype=index)
         data = np.empty(int(indptr[-1]), dtype=np.float64)  # what Dijkstra searches in: no copy per search
-        for (di, dj), (a, b), edge in zip(_NEIGHBOURS, pairs, both, strict=True):  # in order of the target's id
-            sources = node_of[a][edge]
-            at = slot[sources]
-            indices[at] = node_of[b][edge]
-            step_m = grid.resolution_m * math.hypot(di, dj)
-            data[at] = step_m * (1.0 + 0.5 * (penalty[a][edge] + penalty[b][edge]))
-            slot[sources] += 1
+        _fill_edges(node_of, penalty, constants, indices, data)
         graph = csr_matrix((data, indices, indptr), shape=(n, n))
         graph.has_sorted_indices = True
         return cls(grid, node_of, cells, graph)
@@ -181,3 +169,49 @@ class PlanningGraph:
         """(K, 2) centres of the given nodes' cells."""
         x, y = self.grid.center_of(*np.divmod(self.cells[np.asarray(nodes)], self.grid.shape[1]))
         return np.stack([np.atleast_1d(x), np.atleast_1d(y)], axis=1)
+
+
+# The 8-neighbour offsets of _NEIGHBOURS, as the kernels' arrays.
+_DI = np.array([di for di, _ in _NEIGHBOURS], dtype=np.int64)
+_DJ = np.array([dj for _, dj in _NEIGHBOURS], dtype=np.int64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_edges(node_of, indptr):
+    """indptr[a + 1] ← the edges of nodes 0 … a (each undirected edge once, from its lower node id): a CSR row
+    pointer. Nodes are numbered row-major, so the scan meets them in order."""
+    rows, cols = node_of.shape
+    k = 0
+    for i in range(rows):
+        for j in range(cols):
+            a = node_of[i, j]
+            if a < 0:
+                continue
+            for d in range(4):
+                ii, jj = i + _DI[d], j + _DJ[d]
+                if ii < rows and 0 <= jj < cols and node_of[ii, jj] >= 0:
+                    k += 1
+            indptr[a + 1] = k
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_edges(node_of, penalty, constants, indices, data):
+    """Each node's edges in :data:`_NEIGHBOURS` order (ascending target id): the target in ``indices``, the weight
+    step × (1 + 0.5 (penalty_a + penalty_b)) in ``data``, computed in ``penalty``'s dtype (``constants``: the
+    straight and the diagonal step, 0.5 and 1 in that dtype) and stored as float64."""
+    rows, cols = node_of.shape
+    half, one = constants[2], constants[3]
+    k = 0
+    for i in range(rows):
+        for j in range(cols):
+            if node_of[i, j] < 0:
+                continue
+            for d in range(4):
+                ii, jj = i + _DI[d], j + _DJ[d]
+                if ii < rows and 0 <= jj < cols:
+                    b = node_of[ii, jj]
+                    if b >= 0:
+                        step = constants[0] if _DI[d] == 0 or _DJ[d] == 0 else constants[1]
+                        indices[k] = b
+                        data[k] = step * (one + half * (penalty[i, j] + penalty[ii, jj]))
+                        k += 1

@@ -44,10 +44,10 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     """Run each numba kernel of a flight over ``raster`` once, with the flight's argument types: with ``camera``
     (raster → the simulated depth camera, :meth:`edge_explorer.sim.flight.SimulatedFlight.camera`) the camera's
     render, then fusion into both voxel maps, projection, the coverage count, the follower's swept-path test, the
-    learned planner's map inflation and the planners' lines of sight (numba keeps one machine-code version per
-    argument types, so these calls compile or load exactly those; tests/runtime/test_kernels.py checks the default
-    flight loads no other). Without a camera (a real drone's) the fusion takes a flat frame of the D435's decimated
-    stream: the same argument types."""
+    learned planner's map inflation, the planners' lines of sight and their planning graph (numba keeps one
+    machine-code version per argument types, so these calls compile or load exactly those;
+    tests/runtime/test_kernels.py checks the default flight loads no other). Without a camera (a real drone's) the
+    fusion takes a flat frame of the D435's decimated stream: the same argument types."""
     import numpy as np
 
     from edge_explorer.mapping.ego import inflate_codes
@@ -55,6 +55,8 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     from edge_explorer.mapping.metrics import map_metrics
     from edge_explorer.mapping.projection import HeightBand
     from edge_explorer.mapping.voxels import FusionConfig
+    from edge_explorer.plan.follow import FreeSpace
+    from edge_explorer.plan.graph import GraphConfig, PlanningGraph
     from edge_explorer.plan.sight import clear_lines
     from edge_explorer.vehicle.camera import CameraConfig, CameraPose
     from edge_explorer.vehicle.dynamics import swept_path_blocked
@@ -89,6 +91,7 @@ def warm_kernels(raster: Any, camera: Callable[[Any], Any] | None = None) -> Non
     swept_path_blocked(np.zeros(high.shape, dtype=bool), high_grid, (x_m, y_m), (x_m, y_m))
     inflate_codes(high, high_grid.resolution_m)  # the learned planner's observation (mapping/ego.py)
     clear_lines(np.zeros(2), np.ones((1, 2)), np.linspace(0.0, 1.0, 3), low == 0, low_grid.origin_xy, 0.2)  # views
+    PlanningGraph.build(FreeSpace.from_codes(high, high_grid), 0.3, (x_m, y_m), GraphConfig())  # the planning graph
     global _warm
     _warm = True
 
