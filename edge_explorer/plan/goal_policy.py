@@ -27,7 +27,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import cv2
 import numpy as np
@@ -41,6 +43,18 @@ from edge_explorer.vehicle.dynamics import ActionTable
 from edge_explorer.world.grid import OCCUPIED, UNKNOWN
 
 GoalPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]  # observation → (59, 59) goal-cell scores
+
+
+@runtime_checkable
+class ConcurrentGoalPolicy(Protocol):
+    """A :data:`GoalPolicy` that can also start scoring an observation and answer later (a model that runs off the
+    interpreter's lock, on a thread of its own): the planner searches its goal options meanwhile."""
+
+    def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray: ...
+
+    def submit(self, observation: dict[str, np.ndarray]) -> Future[np.ndarray]: ...
+
+
 _TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
 _EXPERT_DEFAULTS = PredictiveConfig()
 
@@ -58,10 +72,15 @@ def goal_decision(
     view: View, pose: Pose, fused_low: np.ndarray, last_action: int, goal_radius_m: float
 ) -> GoalDecision:
     """The observation and goal options of ``view`` (whose frontier is the fused one) at ``pose``."""
+    return decision_with(view, pose, decision_observation(view, pose, fused_low, last_action), goal_radius_m)
+
+
+def decision_observation(view: View, pose: Pose, fused_low: np.ndarray, last_action: int) -> dict[str, np.ndarray]:
+    """The policy's observation of ``view`` at ``pose`` (the first half of :func:`goal_decision`)."""
     maps = view.maps
     high_cell = tuple(int(v) for v in maps.high_grid.cell_of(*pose[:2]))
     low_cell = tuple(int(v) for v in maps.low_grid.cell_of(*pose[:2]))
-    observation = observation_from_maps(
+    return observation_from_maps(
         maps.high,
         fused_low,
         maps.high_grid.resolution_m,
@@ -71,6 +90,12 @@ def goal_decision(
         pose[2],
         last_action,
     )
+
+
+def decision_with(view: View, pose: Pose, observation: dict[str, np.ndarray], goal_radius_m: float) -> GoalDecision:
+    """The decision of ``observation`` (:func:`decision_observation`'s): the goal options searched on ``view``'s
+    planning graph from ``pose`` (the second half of :func:`goal_decision`)."""
+    maps = view.maps
     graph = view.graph
     start = graph.node_at(*pose[:2])
     size = GOAL_GRID_CELLS
@@ -260,11 +285,15 @@ class GoalPolicyPlanner(PredictiveFrontier):
         self.settings = dataclasses.replace(self.predictive, min_gain_cells=self.predictive.whole_floor_min_gain_cells)
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
+        """The policy's goal (module docstring). A policy that can also :meth:`~ConcurrentGoalPolicy.submit` an
+        observation scores it while the goal options are searched (the daemon's, on its own thread): the same
+        scores, sooner."""
         fused = self.fused if self.fused is not None else view.maps.low
-        decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
+        observation = decision_observation(view, pose, fused, self.last_action)
+        pending = self.policy.submit(observation) if isinstance(self.policy, ConcurrentGoalPolicy) else None
+        decision = decision_with(view, pose, observation, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
-        scores = weighted_scores(
-            self.policy(decision.observation), decision.options, self.settings.policy_cost_weight_per_m
-        )
+        raw = pending.result() if pending is not None else self.policy(decision.observation)
+        scores = weighted_scores(raw, decision.options, self.settings.policy_cost_weight_per_m)
         return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.settings))

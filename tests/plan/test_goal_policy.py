@@ -84,6 +84,50 @@ def test_the_planner_flies_a_cost_weighted_policy_to_full_coverage():
     assert info["coverage"] >= 0.95 and collisions == 0
 
 
+class _OnItsOwnThread:
+    """A concurrent policy: scores on a thread of its own, counting what it was asked where."""
+
+    def __init__(self, scores) -> None:  # noqa: ANN001 - a scoring callable
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.scores, self.pool, self.calls, self.submitted = scores, ThreadPoolExecutor(1), 0, 0
+
+    def __call__(self, observation):  # noqa: ANN001, ANN204 - the GoalPolicy signature
+        self.calls += 1
+        return self.scores(observation)
+
+    def submit(self, observation):  # noqa: ANN001, ANN201
+        self.submitted += 1
+        return self.pool.submit(self.scores, observation)
+
+
+def test_a_policy_that_scores_on_its_own_thread_flies_the_same_actions():
+    """A ConcurrentGoalPolicy scores every goal decision through submit (while the options are searched), never
+    inline, and the flight is action for action the plain policy's."""
+    from edge_explorer.plan.goal_policy import ConcurrentGoalPolicy
+
+    rooms = rasterize(two_room_plan(), 0.05)
+    actions = []
+    concurrent = _OnItsOwnThread(lambda o: nearest_first_scores())
+    assert isinstance(concurrent, ConcurrentGoalPolicy) and not isinstance(lambda o: None, ConcurrentGoalPolicy)
+    for policy in (lambda o: nearest_first_scores(), concurrent):
+        env = ExplorationEnv([rooms], EnvConfig(coverage_goal=1.0, max_steps=120))
+        planner = GoalPolicyPlanner(policy, PredictiveConfig(policy_cost_weight_per_m=0.5), env.table)
+        planner.reset()
+        _, info = env.reset(seed=7, options={"start_pose": (1.0, 1.5, -math.pi / 2)})
+        flown, previous = [], 0
+        for _ in range(120):
+            action = planner.act(env.maps, env.pose, previous, env.thresholded_low)
+            if action is None:
+                break
+            env.step(action)
+            flown.append(action)
+            previous = action
+        actions.append(flown)
+    assert actions[0] == actions[1] and len(actions[0]) > 20
+    assert concurrent.submitted > 0 and concurrent.calls == 0
+
+
 def _real_decision():
     """A decision of the two-room plan at its start, with the planner's view and the observed map as fused map."""
     rooms = rasterize(two_room_plan(), 0.05)

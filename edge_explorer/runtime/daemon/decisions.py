@@ -37,6 +37,7 @@ import logging
 import math
 import time
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -75,7 +76,11 @@ class TimedScores:
     """The goal policy's scores for one decision of the goal planner, timed as stage "policy" (inside the stage
     "planner" that asks for them). A plain object rather than a bound method of the daemon: the planner holding it
     then holds no reference back to the daemon, a cycle that kept each finished flight's maps and planners (+31 MB
-    a flight) alive until the cyclic collector's next full pass when flights ran back to back (the soak)."""
+    a flight) alive until the cyclic collector's next full pass when flights ran back to back (the soak).
+
+    It is a :class:`~edge_explorer.plan.goal_policy.ConcurrentGoalPolicy`: :meth:`submit` scores on the policy's
+    own thread (LiteRT runs off the interpreter's lock) while the planner searches its goal options, which takes
+    the policy's ~5 ms off a goal decision's latency."""
 
     policy: PolicyRuntime
     timings: StageTimings
@@ -83,6 +88,20 @@ class TimedScores:
     def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray:
         with self.timings.timed("policy"):
             return self.policy.scores(observation)
+
+    def submit(self, observation: dict[str, np.ndarray]) -> Future[np.ndarray]:
+        return _policy_thread().submit(self, observation)
+
+
+_POLICY_THREAD: ThreadPoolExecutor | None = None
+
+
+def _policy_thread() -> ThreadPoolExecutor:
+    """The one thread every flight of this process scores its goal policy on (flights run one at a time)."""
+    global _POLICY_THREAD
+    if _POLICY_THREAD is None:
+        _POLICY_THREAD = ThreadPoolExecutor(max_workers=1, thread_name_prefix="goal-policy")
+    return _POLICY_THREAD
 
 
 def make_planner(
