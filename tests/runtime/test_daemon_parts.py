@@ -594,3 +594,29 @@ def test_the_return_arrives_within_a_step_of_home(clock):
         phases.finish_exploring("time limit")
         assert phases.home_action(maps, (5.3, 5.0, yaw), int(Action.HOVER)) is None
         assert (state.phase, state.reached_home) == ("home", True)
+
+
+def test_the_goal_policy_scores_on_its_own_daemon_thread_and_its_failures_reach_the_planner():
+    """TimedScores.submit: the same scores as a call, timed as stage "policy", on a daemon thread (the program's
+    exit joins every other thread); a model that raises raises where the planner waits for the scores."""
+    import threading
+
+    from edge_explorer.plan.goal_policy import ConcurrentGoalPolicy
+    from edge_explorer.runtime.daemon.report import StageTimings
+
+    seen = []
+
+    def scores(observation):  # noqa: ANN001, ANN202 - PolicyRuntime.scores
+        seen.append(threading.current_thread())
+        if observation["fail"]:
+            raise RuntimeError("model failed")
+        return np.full((59, 59), 2.0, dtype=np.float32)
+
+    timings = StageTimings()
+    policy = decisions_module.TimedScores(SimpleNamespace(scores=scores), timings)
+    assert isinstance(policy, ConcurrentGoalPolicy)
+    np.testing.assert_array_equal(policy.submit({"fail": False}).result(timeout=5), policy({"fail": False}))
+    assert seen[0].daemon and seen[0] is not threading.main_thread() and seen[1] is threading.main_thread()
+    assert len(timings.samples_ms("policy")) == 2
+    with pytest.raises(RuntimeError, match="model failed"):
+        policy.submit({"fail": True}).result(timeout=5)
