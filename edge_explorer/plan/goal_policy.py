@@ -280,9 +280,15 @@ class GoalPolicyPlanner(PredictiveFrontier):
         self.settings = self.predictive
 
     def on_whole_floor(self) -> None:
-        """On a whole floor every valid goal may be flown, not only those worth a look
-        (:attr:`PredictiveConfig.whole_floor_min_gain_cells`)."""
-        self.settings = dataclasses.replace(self.predictive, min_gain_cells=self.predictive.whole_floor_min_gain_cells)
+        """On a whole floor every valid goal may be flown, not only those worth a look, and goals are ranked with the
+        whole-floor weights of path cost and view gain (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
+        whole = self.predictive
+        self.settings = dataclasses.replace(
+            whole,
+            min_gain_cells=whole.whole_floor_min_gain_cells,
+            policy_cost_weight_per_m=whole.whole_floor_cost_weight_per_m,
+            policy_gain_weight=whole.whole_floor_gain_weight,
+        )
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         """The policy's goal (module docstring). A policy that can also :meth:`~ConcurrentGoalPolicy.submit` an

@@ -112,6 +112,11 @@ class PredictiveConfig:
     # way back at the end. 8 generated val floors (floor-val 2, 3, 10, 11, 16, 21, 22, 26; 1 run, seed 0, predictor
     # envelope on), against 30: path to 90 % / 95 % correct coverage ×0.90 / ×0.94 (session 42).
     whole_floor_min_gain_cells: int = 0
+    # the learned planner on a whole floor: its policy_cost_weight_per_m and policy_gain_weight there. A large view's
+    # bonus outweighs ~15 m of path at the window's weights, so on its first pass along a corridor the planner took
+    # the large rooms and left the row of small offices beside it for a second pass.
+    whole_floor_cost_weight_per_m: float = 0.3
+    whole_floor_gain_weight: float = 2.0
 
     def __post_init__(self) -> None:
         if (
@@ -126,11 +131,13 @@ class PredictiveConfig:
             or self.policy_gain_weight < 0
             or self.cost_decay_per_m < 0
             or self.whole_floor_min_gain_cells < 0
+            or self.whole_floor_cost_weight_per_m < 0
+            or self.whole_floor_gain_weight < 0
         ):
             raise ValueError(
                 "cluster_max_radius_m, cost_offset_m must be positive; min_gain_cells, gain_exponent, "
                 "near_fallback_ratio, policy_cost_weight_per_m, policy_max_detour_m, policy_detour_min_cells, "
-                "policy_gain_weight, cost_decay_per_m, whole_floor_min_gain_cells ≥ 0"
+                "policy_gain_weight, cost_decay_per_m and the whole_floor_ settings ≥ 0"
             )
         if not 0 < self.done_fraction <= 1:
             raise ValueError("done_fraction must be in (0, 1]")

@@ -152,16 +152,34 @@ def test_the_local_planner_is_told_once_when_the_observed_cells_outspan_the_enve
     assert not planner.whole_floor  # a new flight starts with the small-building settings
 
 
-def test_the_learned_planner_flies_every_valid_goal_on_a_whole_floor():
+def test_the_learned_planner_takes_its_whole_floor_settings_on_a_whole_floor():
     from edge_explorer.plan.goal_policy import GoalPolicyPlanner
     from edge_explorer.plan.predictive import PredictiveConfig
 
-    learned = GoalPolicyPlanner(lambda observation: None, PredictiveConfig(min_gain_cells=30))  # type: ignore[arg-type]
-    assert learned.settings.min_gain_cells == 30
+    config = PredictiveConfig(
+        min_gain_cells=30,
+        policy_cost_weight_per_m=0.3,
+        policy_gain_weight=2.0,
+        whole_floor_min_gain_cells=0,
+        whole_floor_cost_weight_per_m=1.5,
+        whole_floor_gain_weight=0.5,
+    )
+    learned = GoalPolicyPlanner(lambda observation: None, config)  # type: ignore[arg-type]
+    window = (
+        learned.settings.min_gain_cells,
+        learned.settings.policy_cost_weight_per_m,
+        learned.settings.policy_gain_weight,
+    )
+    assert window == (30, 0.3, 2.0)
     learned.on_whole_floor()
-    assert learned.settings.min_gain_cells == PredictiveConfig().whole_floor_min_gain_cells == 0
+    whole = (
+        learned.settings.min_gain_cells,
+        learned.settings.policy_cost_weight_per_m,
+        learned.settings.policy_gain_weight,
+    )
+    assert whole == (0, 1.5, 0.5)
     learned.reset()
-    assert learned.settings.min_gain_cells == 30
+    assert learned.settings == config  # a new flight starts with the small-building settings
 
 
 def test_a_target_routed_to_four_times_is_dropped_for_the_next_nearest():
