@@ -69,6 +69,11 @@ class WindowConfig:
     size_m: float = 24.0  # side of the square of the maps the local planner sees
     recentre_m: float = 4.0  # the window moves when the vehicle is this far from where it would centre it
     transit_margin_m: float = 2.0  # a route is followed to its last point this far inside the window's edge
+    # the least distance the vehicle keeps from the window's edge when a move must keep the flown goal's target in
+    # the window (``keep_in_window``) and the usual size_m / 2 − recentre_m cannot: a path that leads round a wall
+    # 16 m from its target otherwise lost the goal at the move, the window emptied, and the global layer and the
+    # local planner sent the vehicle back and forth round that wall for 8,000 steps (a generated val floor)
+    keep_margin_m: float = 3.0
     route: RouteConfig = RouteConfig()
     # (long, short) sides: once the observed cells span more, the building is larger than any the planners were
     # tuned on (the predictor's 21 × 11 m envelope + 2 m) and the local planner takes its whole-floor settings
@@ -79,6 +84,8 @@ class WindowConfig:
             raise ValueError("size_m must be positive and recentre_m in (0, size_m / 2)")
         if not 0 <= self.transit_margin_m < self.size_m / 2 - self.recentre_m:
             raise ValueError("transit_margin_m must be in [0, size_m / 2 − recentre_m)")
+        if not 0 < self.keep_margin_m <= self.size_m / 2 - self.recentre_m:
+            raise ValueError("keep_margin_m must be in (0, size_m / 2 − recentre_m]")
 
 
 @dataclass(frozen=True)
@@ -114,20 +121,36 @@ def place_window(low_grid: GridSpec, pose_xy_m: tuple[float, float], size_m: flo
 
 
 def keep_in_window(
-    window: Window, shape: tuple[int, int], keep: np.ndarray, vehicle: tuple[int, int], margin: int
+    window: Window,
+    shape: tuple[int, int],
+    keep: np.ndarray,
+    vehicle: tuple[int, int],
+    margin: int,
+    least_margin: int | None = None,
 ) -> Window:
     """``window`` shifted the least along each axis so that the cells ``keep`` (flat indices on a map of ``shape``)
-    lie in it while the ``vehicle``'s cell stays ``margin`` cells inside its edges and the window on the map;
-    ``window`` unchanged along an axis where that cannot be done."""
+    and their neighbours lie in it (a frontier target on the window's edge would lose the unknown neighbour that
+    makes it one) while the ``vehicle``'s cell stays ``margin`` cells inside its edges and the window on the map. Where
+    ``margin`` is too much for that, the vehicle may come as near the edge as ``least_margin`` cells (default
+    ``margin``), keeping as much margin as it can; ``window`` is unchanged along an axis where even that cannot be
+    done."""
     rows, cols = np.divmod(np.asarray(keep, dtype=np.int64), shape[1])
+    rows = np.clip([rows.min() - 1, rows.max() + 1], 0, shape[0] - 1)
+    cols = np.clip([cols.min() - 1, cols.max() + 1], 0, shape[1] - 1)
+    least = margin if least_margin is None else min(least_margin, margin)
     starts = []
     for start, size, n, lo, hi, at in (
         (window.row0, window.shape[0], shape[0], rows.min(), rows.max(), vehicle[0]),
         (window.col0, window.shape[1], shape[1], cols.min(), cols.max(), vehicle[1]),
     ):
-        first = max(int(hi) - size + 1, at + margin - size + 1, 0)  # the lowest start that holds both, on the map
-        last = min(int(lo), at - margin, n - size)  # the highest
-        starts.append(int(np.clip(start, first, last)) if first <= last else start)
+        chosen = start
+        for m in range(margin, least - 1, -1):
+            first = max(int(hi) - size + 1, at + m - size + 1, 0)  # the lowest start that holds both, on the map
+            last = min(int(lo), at - m, n - size)  # the highest
+            if first <= last:
+                chosen = int(np.clip(start, first, last))
+                break
+        starts.append(chosen)
     return Window(starts[0], starts[1], window.shape)
 
 
@@ -318,8 +341,9 @@ class WindowedPlanner:
             carried = self.local.goal_on(self.window.grid(grid), grid)
             if carried is not None and not force:  # the move keeps the goal's target in view (module docstring)
                 margin = int(round((self.config.size_m / 2 - self.config.recentre_m) / grid.resolution_m))
+                least = int(round(self.config.keep_margin_m / grid.resolution_m))
                 vehicle = tuple(int(v) for v in grid.cell_of(*pose[:2]))
-                wanted = keep_in_window(wanted, grid.shape, carried.target_cells, vehicle, margin)
+                wanted = keep_in_window(wanted, grid.shape, carried.target_cells, vehicle, margin, least)
                 if wanted == self.window:
                     return False
             self._park()

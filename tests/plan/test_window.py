@@ -267,10 +267,58 @@ def test_a_window_move_is_shifted_to_keep_the_goals_target_while_the_vehicle_sta
 def test_keep_in_window_shifts_the_least_and_gives_up_when_the_vehicle_would_be_too_near_the_edge():
     window = Window(0, 10, (10, 20))
     shape = (10, 100)
-    assert keep_in_window(window, shape, np.array([33]), (5, 20), 4) == Window(0, 14, (10, 20))  # col 33 now last
+    assert keep_in_window(window, shape, np.array([33]), (5, 20), 4) == Window(0, 15, (10, 20))  # its neighbour last
     assert keep_in_window(window, shape, np.array([12]), (5, 20), 4) == window  # already inside
     assert keep_in_window(window, shape, np.array([45]), (5, 20), 4) == window  # the vehicle would be off it
     assert keep_in_window(window, shape, np.array([99]), (5, 95), 2) == Window(0, 80, (10, 20))  # on the map
+
+
+def test_keep_in_window_lets_the_vehicle_nearer_the_edge_only_as_far_as_needed():
+    window = Window(0, 10, (10, 20))
+    shape = (10, 100)
+    # col 32 and its neighbour col 33: 4 cells of margin cannot hold them, nor can 3; 2 can
+    assert keep_in_window(window, shape, np.array([32]), (5, 16), 4) == window
+    assert keep_in_window(window, shape, np.array([32]), (5, 16), 4, 3) == window
+    assert keep_in_window(window, shape, np.array([32]), (5, 16), 4, 1) == Window(0, 14, (10, 20))
+    assert keep_in_window(window, shape, np.array([29]), (5, 16), 4, 1) == Window(0, 11, (10, 20))  # 4 can: kept
+
+
+def u_turn_plan() -> FloorPlan:
+    """A 60 × 4 m hall split along x by a thin wall from the west end to 21 m: two 2 m lanes joined at 21 m."""
+    walls = (
+        Rect(0.0, 0.0, 60.0, 0.1),
+        Rect(0.0, 3.9, 60.0, 4.0),
+        Rect(0.0, 0.0, 0.1, 4.0),
+        Rect(59.9, 0.0, 60.0, 4.0),
+        Rect(0.0, 1.95, 21.0, 2.05),
+    )
+    return FloorPlan("u-turn", ((0.0, 0.0), (60.0, 0.0), (60.0, 4.0), (0.0, 4.0)), walls, (), ())
+
+
+def test_a_goal_round_a_wall_is_kept_when_its_path_leads_the_vehicle_far_from_its_target():
+    # the path to a target 2 m from the west end of the north lane leads east along the south lane and round the
+    # wall's end at 21 m: at the turn the vehicle is ~20 m from its target, more than a window that keeps the
+    # vehicle 8 m inside its edge can hold. Losing the goal there looped a learned flight round such a wall for
+    # 8,000 steps on a generated val floor (the window emptied, the global layer sent the vehicle back, the local
+    # planner took the target again, round the wall again)
+    raster = rasterize(u_turn_plan(), 0.05)
+    codes = raster.truth_codes()
+    row, col = raster.grid.cell_of(2.0, 2.1)
+    codes[row:, :col] = UNKNOWN  # the north lane's west end is all that is left to see
+    factor = resolution_factor(raster.grid.resolution_m, LOW_RES_M)
+    maps = ObservedMaps(raster.grid, raster.grid.coarsened(factor), codes, coarsen_codes(codes, factor))
+    planner = build_planner("frontier")
+    planner.reset()
+    assert planner.act(maps, (10.0, 1.0, 0.0), 0) is not None
+    goal = planner.local._goal
+    assert goal.path_xy_m[-1, 0] < 4.0 and goal.path_xy_m[:, 0].max() > 21.0  # round the wall's end
+    replans = planner.local.replans
+    for pose in ((16.0, 1.0, 0.0), (19.0, 1.0, 0.0), (21.5, 1.2, 1.57), (21.6, 2.8, 3.14), (18.0, 3.0, 3.14)):
+        assert planner.act(maps, pose, 0) is not None
+        assert planner.local.replans == replans and planner.route is None  # the same goal, flown on
+        window = planner.window.grid(maps.low_grid)
+        x0 = window.origin_xy[0]
+        assert x0 <= 2.0 and pose[0] - x0 <= 24.0 - WindowConfig().keep_margin_m + 0.2
 
 
 def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
