@@ -16,7 +16,9 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
   the vehicle stays as far inside as the recentring rule lets it drift (``size_m / 2 − recentre_m``): a path that
   leads away from its target first (round a wall) took the window with it, lost the goal at the edge, and the
   nearest frontier then lay the other way round the same wall (Nearest Frontier looped that way on a generated
-  test floor for 5,000 steps).
+  test floor for 5,000 steps). Where that margin cannot hold the target, the vehicle may come as near the edge as
+  ``keep_margin_m`` (a learned flight lost a goal 16 m round a wall that way, and went back and forth round it for
+  8,000 steps on a generated val floor).
 * **Global layer.** When the planner has nothing left in its window, the route layer (:mod:`edge_explorer.plan.
   route`) finds the nearest target the planner would explore (:meth:`GoalPlanner.targets`: the observed frontier,
   or the fused one for the predictive planners) outside the window along the observed 0.20 m map. The vehicle flies
