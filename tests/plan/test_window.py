@@ -283,16 +283,18 @@ def test_keep_in_window_lets_the_vehicle_nearer_the_edge_only_as_far_as_needed()
     assert keep_in_window(window, shape, np.array([29]), (5, 16), 4, 1) == Window(0, 11, (10, 20))  # 4 can: kept
 
 
-def u_turn_plan() -> FloorPlan:
-    """A 60 × 4 m hall split along x by a thin wall from the west end to 21 m: two 2 m lanes joined at 21 m."""
+def split_hall(length_m: float, wall_to_m: float) -> FloorPlan:
+    """A ``length_m`` × 4 m hall split along x by a thin wall from the west end to ``wall_to_m``: two 2 m lanes
+    joined east of it."""
     walls = (
-        Rect(0.0, 0.0, 60.0, 0.1),
-        Rect(0.0, 3.9, 60.0, 4.0),
+        Rect(0.0, 0.0, length_m, 0.1),
+        Rect(0.0, 3.9, length_m, 4.0),
         Rect(0.0, 0.0, 0.1, 4.0),
-        Rect(59.9, 0.0, 60.0, 4.0),
-        Rect(0.0, 1.95, 21.0, 2.05),
+        Rect(length_m - 0.1, 0.0, length_m, 4.0),
+        Rect(0.0, 1.95, wall_to_m, 2.05),
     )
-    return FloorPlan("u-turn", ((0.0, 0.0), (60.0, 0.0), (60.0, 4.0), (0.0, 4.0)), walls, (), ())
+    outline = ((0.0, 0.0), (length_m, 0.0), (length_m, 4.0), (0.0, 4.0))
+    return FloorPlan("split-hall", outline, walls, (), ())
 
 
 def test_a_goal_round_a_wall_is_kept_when_its_path_leads_the_vehicle_far_from_its_target():
@@ -301,7 +303,7 @@ def test_a_goal_round_a_wall_is_kept_when_its_path_leads_the_vehicle_far_from_it
     # vehicle 8 m inside its edge can hold. Losing the goal there looped a learned flight round such a wall for
     # 8,000 steps on a generated val floor (the window emptied, the global layer sent the vehicle back, the local
     # planner took the target again, round the wall again)
-    raster = rasterize(u_turn_plan(), 0.05)
+    raster = rasterize(split_hall(60.0, 21.0), 0.05)
     codes = raster.truth_codes()
     row, col = raster.grid.cell_of(2.0, 2.1)
     codes[row:, :col] = UNKNOWN  # the north lane's west end is all that is left to see
@@ -324,15 +326,7 @@ def test_a_goal_round_a_wall_is_kept_when_its_path_leads_the_vehicle_far_from_it
 def test_the_transit_ends_on_its_points_side_of_a_thin_wall():
     # two corridors side by side, split by a 0.1 m wall open at its east end: the point lies across the wall from
     # the vehicle, so the transit must fly round (it once flew to the near side, 1 m away, and back)
-    walls = (
-        Rect(0.0, 0.0, 30.0, 0.1),
-        Rect(0.0, 3.9, 30.0, 4.0),
-        Rect(0.0, 0.0, 0.1, 4.0),
-        Rect(29.9, 0.0, 30.0, 4.0),
-        Rect(0.0, 1.95, 26.0, 2.05),
-    )
-    outline = ((0.0, 0.0), (30.0, 0.0), (30.0, 4.0), (0.0, 4.0))
-    raster = rasterize(FloorPlan("split-corridor", outline, walls, (), ()), 0.05)
+    raster = rasterize(split_hall(30.0, 26.0), 0.05)
     transit = WindowedPlanner(NearestFrontier()).transit
     transit.reset()
     transit.lead_to(np.array([5.0, 3.0]))
