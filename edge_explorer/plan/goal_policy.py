@@ -110,6 +110,17 @@ def decision_with(view: View, pose: Pose, observation: dict[str, np.ndarray], go
     return GoalDecision(observation, options, predecessors[0])
 
 
+def nearest_goals(options: GoalOptions, max_extra_m: float) -> GoalOptions:
+    """``options`` less the goals whose path costs more than ``max_extra_m`` beyond the nearest valid one's: on a whole
+    floor the planner chooses among the near goals, so it finishes where it is before it crosses the window for a
+    large view (``PredictiveConfig.policy_max_extra_m``). Unchanged when ``max_extra_m`` is inf or nothing is valid."""
+    mask = options.mask
+    if math.isinf(max_extra_m) or not mask.any():
+        return options
+    near = mask & (options.cost_m <= float(options.cost_m[mask].min()) + max_extra_m)
+    return GoalOptions(np.where(near, options.node, -1), np.where(near, options.cost_m, np.inf))
+
+
 def expert_label(goal: Goal, pose: Pose, view: View, options: GoalOptions) -> int | None:
     """Flat goal cell of the expert's ``goal`` (where its path ends), or ``None`` if that cell is not a valid
     option (the expert fell back to the observed frontier, or its goal lies outside the goal grid)."""
@@ -280,14 +291,16 @@ class GoalPolicyPlanner(PredictiveFrontier):
         self.settings = self.predictive
 
     def on_whole_floor(self) -> None:
-        """On a whole floor every valid goal may be flown, not only those worth a look, and goals are ranked with the
-        whole-floor weights of path cost and view gain (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
+        """On a whole floor every valid goal may be flown, not only those worth a look, goals are ranked with the
+        whole-floor weights of path cost and view gain, and only those near the nearest are chosen from
+        (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
         whole = self.predictive
         self.settings = dataclasses.replace(
             whole,
             min_gain_cells=whole.whole_floor_min_gain_cells,
             policy_cost_weight_per_m=whole.whole_floor_cost_weight_per_m,
             policy_gain_weight=whole.whole_floor_gain_weight,
+            policy_max_extra_m=whole.whole_floor_max_extra_m,
         )
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
@@ -300,6 +313,8 @@ class GoalPolicyPlanner(PredictiveFrontier):
         decision = decision_with(view, pose, observation, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
+        near = nearest_goals(decision.options, self.settings.policy_max_extra_m)
+        decision = dataclasses.replace(decision, options=near)
         raw = pending.result() if pending is not None else self.policy(decision.observation)
         scores = weighted_scores(raw, decision.options, self.settings.policy_cost_weight_per_m)
         return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.settings))

@@ -6,19 +6,21 @@ that fit in the window (``size_m`` along both axes: the paper's 21 × 11 m build
 hands the maps to its planner unchanged, so the planner flies exactly as it did without it. On larger maps:
 
 * **Local layer.** The planner sees a ``size_m`` square crop of the observed maps (and of the fused map) around the
-  vehicle, a copy on its own grid, so building its free space, graph and goals costs the same on a 270 m floor as
-  on a 30 m one. The window stays put until the vehicle is ``recentre_m`` from where the window would centre it; it
-  then moves, and the planner's memory on the grid (dropped and committed targets, :meth:`GoalPlanner.memory`) is
-  kept on the whole map and handed back cropped to the new window, and so is its goal while its target lies in
-  the new window (a planner that replanned after every move could turn to a nearer target each time and fly
-  back and forth between two windows: a generated test floor ran to the step cap that way). A move that would
-  leave the goal's target just outside is shifted the least that keeps it in (:func:`keep_in_window`), as long as
-  the vehicle stays as far inside as the recentring rule lets it drift (``size_m / 2 − recentre_m``): a path that
-  leads away from its target first (round a wall) took the window with it, lost the goal at the edge, and the
-  nearest frontier then lay the other way round the same wall (Nearest Frontier looped that way on a generated
-  test floor for 5,000 steps). Where that margin cannot hold the target, the vehicle may come as near the edge as
-  ``keep_margin_m`` (a learned flight lost a goal 16 m round a wall that way, and went back and forth round it for
-  8,000 steps on a generated val floor).
+  vehicle, a copy on its own grid, so building its free space, graph and goals costs the same on a 270 m floor as on a
+  30 m one. The window stays put until the vehicle is ``recentre_m`` from where the window would centre it, or the
+  window it would take reaches a border of the map that the one in use stops short of (:func:`reaches_border`: near the
+  border the centred window is shifted onto the map, and the strip beyond the window's edge, the building's outer wall
+  in it, was out of the follower's sight); it then moves, and the planner's memory on the grid (dropped and committed
+  targets, :meth:`GoalPlanner.memory`) is kept on the whole map and handed back cropped to the new window, and so is its
+  goal while its target lies in the new window (a planner that replanned after every move could turn to a nearer target
+  each time and fly back and forth between two windows: a generated test floor ran to the step cap that way). A move
+  that would leave the goal's target just outside is shifted the least that keeps it in (:func:`keep_in_window`), as
+  long as the vehicle stays as far inside as the recentring rule lets it drift (``size_m / 2 − recentre_m``): a path
+  that leads away from its target first (round a wall) took the window with it, lost the goal at the edge, and the
+  nearest frontier then lay the other way round the same wall (Nearest Frontier looped that way on a generated test
+  floor for 5,000 steps). Where that margin cannot hold the target, the vehicle may come as near the edge as
+  ``keep_margin_m`` (a learned flight lost a goal 16 m round a wall that way, and went back and forth round it for 8,000
+  steps on a generated val floor).
 * **Global layer.** When the planner has nothing left in its window, the route layer (:mod:`edge_explorer.plan.
   route`) finds the nearest target the planner would explore (:meth:`GoalPlanner.targets`: the observed frontier,
   or the fused one for the predictive planners) outside the window along the observed 0.20 m map. The vehicle flies
@@ -120,6 +122,21 @@ def place_window(low_grid: GridSpec, pose_xy_m: tuple[float, float], size_m: flo
     row0 = int(np.clip(row - rows // 2, 0, low_grid.shape[0] - rows))
     col0 = int(np.clip(col - cols // 2, 0, low_grid.shape[1] - cols))
     return Window(row0, col0, (rows, cols))
+
+
+def reaches_border(wanted: Window, window: Window, grid: GridSpec) -> bool:
+    """Whether ``wanted`` reaches a border of the map ``grid`` that ``window`` stops short of. Near the map's border
+    the centred window is shifted onto the map, so it may lie less than ``recentre_m`` from the one in use while the
+    vehicle is far off that one's centre: then the strip of map between the window and the border, walls included,
+    was out of the follower's sight (a vehicle 0.2 m from the window's edge brushed the building's outer wall just
+    beyond it, 4 times, on a generated val floor)."""
+    for start, size, n, old_start in (
+        (wanted.row0, wanted.shape[0], grid.shape[0], window.row0),
+        (wanted.col0, wanted.shape[1], grid.shape[1], window.col0),
+    ):
+        if (start == 0 and old_start > 0) or (start + size == n and old_start + size < n):
+            return True
+    return False
 
 
 def keep_in_window(
@@ -338,7 +355,8 @@ class WindowedPlanner:
         goal = None
         if self.window is not None:
             shift = max(abs(wanted.row0 - self.window.row0), abs(wanted.col0 - self.window.col0))
-            if wanted == self.window or (not force and shift * grid.resolution_m < self.config.recentre_m):
+            near = shift * grid.resolution_m < self.config.recentre_m and not reaches_border(wanted, self.window, grid)
+            if wanted == self.window or (not force and near):
                 return False
             carried = self.local.goal_on(self.window.grid(grid), grid)
             if carried is not None and not force:  # the move keeps the goal's target in view (module docstring)

@@ -14,6 +14,7 @@ from edge_explorer.plan.goal_policy import (
     GoalPolicyPlanner,
     best_cell_worth_a_look,
     goal_decision,
+    nearest_goals,
     weighted_scores,
     worth_a_look,
 )
@@ -59,6 +60,18 @@ def test_the_cost_weight_trades_score_for_path_length():
     policy = _policy({10: 3.0, 20: 2.0})
     assert choose_cell(policy, decision, cost_weight_per_m=0.05) == 10  # 3 − 1.0 > 2 − 0.1
     assert choose_cell(policy, decision, cost_weight_per_m=0.1) == 20  # 3 − 2.0 < 2 − 0.2
+
+
+def test_on_a_whole_floor_the_planner_chooses_only_among_goals_near_the_nearest():
+    # crossing the window for a large view left the near rooms for a second pass along the corridor
+    options = _decision({10: 4.0, 20: 15.0, 30: 19.5, 40: 30.0}).options
+    near = nearest_goals(options, 15.0)
+    assert set(np.flatnonzero(near.mask)) == {10, 20}  # 19.5 m is 15.5 m more than the nearest's 4 m
+    np.testing.assert_array_equal(near.cost_m.flat[[10, 20]], [4.0, 15.0])
+    assert np.isinf(near.cost_m.flat[30]) and near.node.flat[30] == -1
+    assert nearest_goals(options, math.inf) is options  # off in the paper's envelope
+    policy = _policy({10: 1.0, 40: 9.0})  # the far goal scores best, but is out of reach of the rule
+    assert choose_cell(policy, GoalDecision({}, near, np.zeros(0, np.int32))) == 10
 
 
 def test_a_negative_cost_weight_is_refused():

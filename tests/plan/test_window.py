@@ -18,6 +18,7 @@ from edge_explorer.plan.window import (
     keep_in_window,
     moved_mask,
     place_window,
+    reaches_border,
 )
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
 from edge_explorer.world.grid import FREE, LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
@@ -163,21 +164,24 @@ def test_the_learned_planner_takes_its_whole_floor_settings_on_a_whole_floor():
         whole_floor_min_gain_cells=0,
         whole_floor_cost_weight_per_m=1.5,
         whole_floor_gain_weight=0.5,
+        whole_floor_max_extra_m=12.0,
     )
     learned = GoalPolicyPlanner(lambda observation: None, config)  # type: ignore[arg-type]
     window = (
         learned.settings.min_gain_cells,
         learned.settings.policy_cost_weight_per_m,
         learned.settings.policy_gain_weight,
+        learned.settings.policy_max_extra_m,
     )
-    assert window == (30, 0.3, 2.0)
+    assert window == (30, 0.3, 2.0, math.inf)
     learned.on_whole_floor()
     whole = (
         learned.settings.min_gain_cells,
         learned.settings.policy_cost_weight_per_m,
         learned.settings.policy_gain_weight,
+        learned.settings.policy_max_extra_m,
     )
-    assert whole == (0, 1.5, 0.5)
+    assert whole == (0, 1.5, 0.5, 12.0)
     learned.reset()
     assert learned.settings == config  # a new flight starts with the small-building settings
 
@@ -262,6 +266,20 @@ def test_a_window_move_is_shifted_to_keep_the_goals_target_while_the_vehicle_sta
     assert x0 < 16.0 - 4.0 + 1e-6 and x1 > target_x  # moved west, but only as far as keeps the target
     assert 16.0 - x0 <= 24.0 - 8.0 + 0.2  # the vehicle as far inside as the recentring rule allows
     assert planner.route is None  # the local planner still has its target in view: no global route
+
+
+def test_near_the_maps_border_the_window_moves_onto_it_before_the_vehicle_nears_the_edge():
+    # the centred window is shifted onto the map near its border, so it moved less than recentre_m while the vehicle
+    # flew to 0.2 m of the old window's edge and brushed the building's outer wall just beyond it (a val floor)
+    maps = observed_up_to(rasterize(corridor_plan(200.0), 0.05), 200.0)
+    planner = build_planner("frontier")
+    planner.reset()
+    planner.act(maps, (185.5, 1.5, 0.0), 0)
+    first = planner.window
+    assert first.col0 + first.shape[1] < maps.low_grid.shape[1]  # 2.6 m short of the corridor's end wall
+    planner.act(maps, (188.5, 1.5, 0.0), 0)  # 3 m on: the centred window would move only 2.6 m, onto the border
+    assert planner.window.col0 + planner.window.shape[1] == maps.low_grid.shape[1]  # the end wall is in view
+    assert reaches_border(planner.window, first, maps.low_grid) and not reaches_border(first, first, maps.low_grid)
 
 
 def test_keep_in_window_shifts_the_least_and_gives_up_when_the_vehicle_would_be_too_near_the_edge():
