@@ -126,3 +126,20 @@ def test_view_points_cast_in_blocks_see_the_same_cells(tmp_path, monkeypatch):
     at_once = observable_cells(raster, reachable)
     monkeypatch.setattr(flight_space, "_SOURCES_PER_BLOCK", 7)
     assert np.array_equal(observable_cells(raster, reachable), at_once)
+
+
+def test_rays_stop_at_the_maps_border_and_never_wrap_round_it(tmp_path):
+    # rays are cast as offsets into the flattened map: one that left a row at its end must not come back on the
+    # next row's start; a wall-free map shows the view point only what lies within range on its own side
+    from dataclasses import replace
+
+    raster = load_map_server(_two_rooms(tmp_path, 20)).raster
+    open_map = replace(raster, height_m=np.zeros_like(raster.height_m))
+    range_cells = round(4.5 / raster.grid.resolution_m)
+    assert raster.grid.shape[1] > range_cells + 20
+    for row in (0, raster.grid.shape[0] // 2, raster.grid.shape[0] - 1):
+        view_point = np.zeros(raster.grid.shape, dtype=bool)
+        view_point[row, 0] = True
+        seen = observable_cells(open_map, view_point)
+        assert seen[row, range_cells - 2]  # in range along the row
+        assert not seen[:, range_cells + 2 :].any()  # beyond range, on either side of the border
