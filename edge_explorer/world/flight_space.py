@@ -157,11 +157,12 @@ def observable_cells(raster: PlanRaster, reachable: np.ndarray, range_m: float =
         for angle in 2.0 * math.pi * np.arange(n_rays) / n_rays:
             rows = np.floor(np.float32(0.5) + along * np.float32(math.sin(angle))).astype(np.int64)
             cols = np.floor(np.float32(0.5) + along * np.float32(math.cos(angle))).astype(np.int64)
-            flat = block_points + (rows * n_cols + cols)  # (view points, samples) on the padded map
-            stopped = np.logical_or.accumulate(flat_walls[flat], axis=1)  # at or after the first wall sample
-            visible = np.ones_like(stopped)
-            visible[:, 1:] = ~stopped[:, :-1]  # up to and including the first wall sample
-            seen[flat[visible]] = True
+            offsets = rows * n_cols + cols
+            offsets = offsets[np.r_[True, offsets[1:] != offsets[:-1]]]  # a cell sampled twice in a row, once
+            flat = block_points + offsets  # (view points, cells along the ray) on the padded map
+            wall = flat_walls[flat]
+            first_wall = np.where(wall.any(axis=1), wall.argmax(axis=1), len(offsets))
+            seen[flat[np.arange(len(offsets)) <= first_wall[:, None]]] = True  # up to and including the first wall
     return seen.reshape(padded_walls.shape)[pad:-pad, pad:-pad] | reachable
 
 
