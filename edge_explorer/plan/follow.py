@@ -33,7 +33,7 @@ closer may fly anywhere that does not bring it closer still.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import product
 
 import numpy as np
@@ -55,6 +55,27 @@ _DIRECTIONS = np.array([(math.cos(a), math.sin(a)) for a in np.linspace(0.0, 2 *
 # FreeSpace measures distances only over the known cells' box grown by this ring (see FreeSpace.from_codes); more
 # than any clearance a planner compares with (GraphConfig.clearance_soft_m, 0.6 m, is the largest).
 _EXACT_RING_M = 1.0
+
+
+def _ring_cells(grid: GridSpec) -> int:
+    return int(math.ceil(_EXACT_RING_M / grid.resolution_m))
+
+
+def _grown(rows: np.ndarray, cols: np.ndarray, by: int, within: tuple[slice, slice]) -> tuple[slice, slice]:
+    """The box of the (sorted, non-empty) ``rows`` × ``cols`` grown by ``by`` cells, clipped to ``within``."""
+    return (
+        slice(max(int(rows[0]) - by, within[0].start), min(int(rows[-1]) + 1 + by, within[0].stop)),
+        slice(max(int(cols[0]) - by, within[1].start), min(int(cols[-1]) + 1 + by, within[1].stop)),
+    )
+
+
+def _known_box(codes: np.ndarray, grid: GridSpec) -> tuple[slice, slice] | None:
+    """The box of the known cells grown by the ring (clipped to the map), or None when no cell is known."""
+    known = codes != UNKNOWN
+    rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+    if not rows.size:
+        return None
+    return _grown(rows, cols, _ring_cells(grid), (slice(0, codes.shape[0]), slice(0, codes.shape[1])))
 
 
 @dataclass(frozen=True)
@@ -105,9 +126,11 @@ class FreeSpace:
     known_free: np.ndarray  # bool: observed FREE
     clearance_m: np.ndarray  # float32: distance between cell centres to the nearest observed OCCUPIED cell
     unseen_clearance_m: np.ndarray  # float32: the same to the nearest UNKNOWN cell
+    _codes: np.ndarray = field(repr=False)  # the code map measured (a copy): what the next step's update compares
+    _box: tuple[slice, slice] | None = field(repr=False)  # the known cells' box grown by the ring; None: none known
 
     @classmethod
-    def from_codes(cls, codes: np.ndarray, grid: GridSpec) -> FreeSpace:
+    def from_codes(cls, codes: np.ndarray, grid: GridSpec, previous: FreeSpace | None = None) -> FreeSpace:
         """Distances as :func:`~edge_explorer.mapping.ego.inflate_codes` measures them (centre to centre), so
         ``clearance_m <= radius`` is exactly its NON_FLIGHT band; an all-free map has infinite clearance.
 
@@ -118,21 +141,40 @@ class FreeSpace:
         nearest to one of its cells is never outside it (the ring is unknown, and clamping a cell outside onto the
         box brings it closer). Outside it every cell is UNKNOWN (unseen clearance 0, exact) and farther than the
         ring from any obstacle: its obstacle clearance reads inf, which no comparison with a distance below the ring
-        tells from its true value."""
-        known = codes != UNKNOWN
+        tells from its true value.
+
+        ``previous``, the free space of the same grid at an earlier step, makes it incremental: a step's scan
+        changes a few square metres of a 24 m window, and only the distances within the ring of a changed cell can
+        change below the ring, so those alone are measured again, over the changed cells' box grown by twice the
+        ring (a distance at most the ring there sees every cell that sets it); the rest is copied. Values at most
+        the ring are exact either way; one above it may then stay a larger value above the ring (the same
+        contract as the inf outside the box). Without ``previous``, or when the known cells' box changed, it
+        measures the whole box."""
+        box = _known_box(codes, grid)
+        if previous is None or previous.grid != grid or previous._box != box:
+            return cls._measured(codes, grid, box)
+        changed = codes != previous._codes
+        rows, cols = np.flatnonzero(changed.any(axis=1)), np.flatnonzero(changed.any(axis=0))
+        clearance, unseen = previous.clearance_m.copy(), previous.unseen_clearance_m.copy()
+        if rows.size:
+            ring = _ring_cells(grid)
+            outer = _grown(rows, cols, 2 * ring + 1, box)
+            inner = _grown(rows, cols, ring + 1, box)
+            within = tuple(slice(i.start - o.start, i.stop - o.start) for i, o in zip(inner, outer, strict=True))
+            part = codes[outer]
+            clearance[inner] = centre_clearance_m(part == OCCUPIED, grid.resolution_m)[within]
+            unseen[inner] = centre_clearance_m(part == UNKNOWN, grid.resolution_m)[within]
+        return cls(grid, codes == FREE, clearance, unseen, codes.copy(), box)
+
+    @classmethod
+    def _measured(cls, codes: np.ndarray, grid: GridSpec, box: tuple[slice, slice] | None) -> FreeSpace:
         clearance = np.full(codes.shape, np.inf, dtype=np.float32)
         unseen = np.zeros(codes.shape, dtype=np.float32)
-        rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
-        if rows.size:
-            ring = int(math.ceil(_EXACT_RING_M / grid.resolution_m))
-            box = (
-                slice(max(int(rows[0]) - ring, 0), int(rows[-1]) + 1 + ring),
-                slice(max(int(cols[0]) - ring, 0), int(cols[-1]) + 1 + ring),
-            )
+        if box is not None:
             part = codes[box]
             clearance[box] = centre_clearance_m(part == OCCUPIED, grid.resolution_m)
             unseen[box] = centre_clearance_m(part == UNKNOWN, grid.resolution_m)
-        return cls(grid, codes == FREE, clearance, unseen)
+        return cls(grid, codes == FREE, clearance, unseen, codes.copy(), box)
 
     def _at(self, values: np.ndarray, x_m: float, y_m: float) -> float:
         row, col = (int(v) for v in self.grid.cell_of(x_m, y_m))

@@ -141,10 +141,19 @@ class Goal:
 class View:
     """What a planner derives from the observed maps at one step; the graph is built only if a planner asks."""
 
-    def __init__(self, maps: ObservedMaps, pose: Pose, frontier: np.ndarray, config: PlannerConfig) -> None:
+    def __init__(
+        self,
+        maps: ObservedMaps,
+        pose: Pose,
+        frontier: np.ndarray,
+        config: PlannerConfig,
+        previous_free: FreeSpace | None = None,
+    ) -> None:
+        """``previous_free``: the free space of an earlier step's view, updated where the map changed since (see
+        :meth:`FreeSpace.from_codes`)."""
         self.maps = maps
         self.frontier = frontier  # bool on the 0.20 m grid, dropped targets removed
-        self.free = FreeSpace.from_codes(maps.high, maps.high_grid)
+        self.free = FreeSpace.from_codes(maps.high, maps.high_grid, previous_free)
         self.traversable = Traversable.from_free_space(
             self.free, config.follow.safe_distance_m, pose[:2], config.graph.factor
         )
@@ -174,6 +183,7 @@ class GoalPlanner:
         self._last_targets: np.ndarray | None = None  # target cells of the latest goal
         self._last_command: tuple[Pose, int] | None = None  # the pose of the latest call and the action returned
         self._blocked: dict[Pose, set[int]] = {}  # actions that collided from exactly this pose (see act)
+        self._free: FreeSpace | None = None  # the latest view's free space, which the next view updates
 
     def reset(self) -> None:
         """Forget the goal, the dropped targets and the blocked motions (a new flight)."""
@@ -185,6 +195,7 @@ class GoalPlanner:
         self._last_targets = None
         self._last_command = None
         self._blocked = {}
+        self._free = None
         self.replans = 0
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:  # pragma: no cover - abstract
@@ -198,7 +209,7 @@ class GoalPlanner:
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """This step's free space, traversable cells and frontier (less the dropped targets). The frontier planners
         target the observed map's frontier and ignore ``fused_low``; a predictive planner overrides this."""
-        return View(maps, pose, frontier_mask(maps.low) & ~self.dropped(maps), self.config)
+        return View(maps, pose, frontier_mask(maps.low) & ~self.dropped(maps), self.config, self._free)
 
     def dropped(self, maps: ObservedMaps) -> np.ndarray:
         """The targets dropped this flight (bool on the 0.20 m grid), reset when the map's shape changes."""
@@ -246,6 +257,7 @@ class GoalPlanner:
             if last_action != Action.HOVER and previous_action == Action.HOVER and pose == last_pose:
                 self._blocked.setdefault(pose, set()).add(last_action)
         view = self.view(maps, pose, fused_low)
+        self._free = view.free
         action = self._act(view, pose, previous_action)
         self._hover_run = self._hover_run + 1 if action == Action.HOVER else 0
         self._last_command = None if action is None else (pose, action)

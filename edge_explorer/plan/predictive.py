@@ -301,7 +301,7 @@ class PredictiveFrontier(GoalPlanner):
         frontier = (fused_frontier | (self._committed & observed)) & ~dropped
         if not frontier.any():
             frontier = observed & ~dropped
-        return View(maps, pose, frontier, self.config)
+        return View(maps, pose, frontier, self.config, self._free)
 
     def status(self, goal: Goal, view: View, pose: Pose) -> str:
         """The shared events, plus commitment: a target that stops being a fused frontier while most of it is still

@@ -224,7 +224,7 @@ class Transit(GoalPlanner):
             row, col = maps.low_grid.cell_of(*self.via_xy_m)
             if maps.low_grid.contains(row, col):
                 target[int(row), int(col)] = True
-        return View(maps, pose, target, self.config)
+        return View(maps, pose, target, self.config, self._free)
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
         if not view.frontier.any():

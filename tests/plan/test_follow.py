@@ -78,6 +78,38 @@ def test_free_space_measures_over_the_known_part_of_a_mostly_unknown_map():
     )
 
 
+def test_free_space_updated_step_by_step_agrees_with_one_measured_afresh():
+    """A step's update measures again only near the changed cells; what every comparison reads (a distance up to the
+    1 m ring) is what measuring the whole map afresh gives, and a distance above the ring stays above it. A change
+    that grows the known cells' box measures the box afresh."""
+    from edge_explorer.world.grid import UNKNOWN
+
+    rng = np.random.default_rng(3)
+    codes = np.full((300, 360), UNKNOWN, dtype=np.int8)
+    codes[60:240, 60:300] = FREE
+    codes[100:104, 80:200] = OCCUPIED
+    grid = GridSpec((0.0, 0.0), 0.05, codes.shape)
+    free = FreeSpace.from_codes(codes, grid)
+    for step in range(12):
+        codes = codes.copy()
+        r, c = int(rng.integers(60, 230)), int(rng.integers(60, 290))
+        h, w = rng.integers(1, 10, 2).tolist()
+        codes[r : r + h, c : c + w] = (OCCUPIED, FREE, UNKNOWN)[step % 3]
+        if step == 7:
+            codes[20:24, 20:40] = FREE  # outside the box: measured afresh
+        free = FreeSpace.from_codes(codes, grid, previous=free)
+        fresh = FreeSpace.from_codes(codes, grid)
+        np.testing.assert_array_equal(free.known_free, fresh.known_free)
+        for updated, measured in (
+            (free.clearance_m, fresh.clearance_m),
+            (free.unseen_clearance_m, fresh.unseen_clearance_m),
+        ):
+            close = measured <= 1.0
+            np.testing.assert_allclose(updated[close], measured[close], atol=1e-5)
+            assert (updated[~close] > 1.0).all()
+    assert free.clearance_m[101, 150] == 0.0 and free.unseen_clearance_m[0, 0] == 0.0
+
+
 def test_follows_a_path_through_the_door(rooms, table):
     raster, free = rooms
     path = np.array([[1.0, 1.5], [2.0, 1.5], [3.0, 1.5]])  # west room → door (y 1..2 at x = 2) → east room
