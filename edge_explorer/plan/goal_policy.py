@@ -20,10 +20,6 @@ of more than ``policy_max_detour_m`` (session 35) — and flies to that cell's g
 it. When no cell is valid the predictive expert's fallbacks apply (observed frontier, then done). The expert
 (:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
 same decisions (:func:`expert_label`) for behaviour cloning.
-
-On a whole floor (:meth:`GoalPolicyPlanner.on_whole_floor`) the goal cells are valid near the *observed* frontier
-instead (``whole_floor_observed_targets``): the policy still sees the fused map, but a room the prediction filled
-is no longer left behind for a second pass along the corridor.
 """
 
 from __future__ import annotations
@@ -294,14 +290,10 @@ class GoalPolicyPlanner(PredictiveFrontier):
         super().reset()
         self.settings = self.predictive
 
-    @property
-    def observed_targets(self) -> bool:
-        return self.settings.observed_targets
-
     def on_whole_floor(self) -> None:
         """On a whole floor every valid goal may be flown, not only those worth a look, goals are ranked with the
-        whole-floor weights of path cost and view gain, only those near the nearest are chosen from, and the targets
-        are the observed frontier (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
+        whole-floor weights of path cost and view gain, and only those near the nearest are chosen from
+        (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
         whole = self.predictive
         self.settings = dataclasses.replace(
             whole,
@@ -309,7 +301,6 @@ class GoalPolicyPlanner(PredictiveFrontier):
             policy_cost_weight_per_m=whole.whole_floor_cost_weight_per_m,
             policy_gain_weight=whole.whole_floor_gain_weight,
             policy_max_extra_m=whole.whole_floor_max_extra_m,
-            observed_targets=whole.whole_floor_observed_targets,
         )
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:

@@ -130,18 +130,6 @@ class PredictiveConfig:
     # On the 15 test floors it made no difference: ×1.19 / ×1.19 / ×1.20 off, ×1.20 / ×1.20 / ×1.19 at 15 m.
     policy_max_extra_m: float = math.inf
     whole_floor_max_extra_m: float = 15.0
-    # the learned planner only: its targets (goal options, and what the hierarchy's global layer routes to) are the
-    # observed frontier, not the fused one. Off in the window: skipping what the prediction already shows is how the
-    # planner halves the path in the paper's envelope. On a whole floor on: a room the prediction filled was left
-    # behind as known, and whatever it had wrong cost a second pass along the corridor at the end (the learned
-    # planner was ahead of Nearest Frontier to 50 % coverage, ×0.84 on the 32 test floors, and behind from 70 %).
-    # The policy still sees the fused map, and coverage still counts the prediction. 8 generated val floors
-    # (floor-val 1, 4, 8, 14, 19, 24, 32, 38; 1 run, seed 0), path ÷ Nearest Frontier's to 95 % coverage / 90 % /
-    # 95 % correct coverage: fused ×1.24 / ×1.21 / ×1.23, observed ×1.10 / ×0.95 / ×1.11 (90 % correct shorter on
-    # all 8 floors), correct area at 100 / 200 / 400 / 800 m 1.30 / 1.15 / 1.07 / 0.96 × → 1.31 / 1.16 / 1.17 /
-    # 1.00 × (session 54).
-    observed_targets: bool = False
-    whole_floor_observed_targets: bool = True
 
     def __post_init__(self) -> None:
         if (
@@ -295,26 +283,17 @@ class PredictiveFrontier(GoalPlanner):
         super().remember(memory, goal)
         self._committed = memory.get("committed")
 
-    @property
-    def observed_targets(self) -> bool:
-        """Whether the targets are the observed frontier rather than the fused one (the learned planner on a
-        whole floor, :attr:`PredictiveConfig.observed_targets`)."""
-        return False
-
     def targets(self, low: np.ndarray, fused_low: np.ndarray | None) -> np.ndarray:
-        """The fused frontier (the observed one where the fused map is not given, or with
-        :attr:`observed_targets`)."""
-        if fused_low is None or self.observed_targets:
+        """The fused frontier (the observed one where the fused map is not given)."""
+        if fused_low is None:
             return frontier_mask(low)
         return fused_frontier_mask(low, fused_low, self.predictive.open_prediction)
 
     def view(self, maps: ObservedMaps, pose: Pose, fused_low: np.ndarray | None = None) -> View:
         """The fused frontier plus the committed targets still on the observed frontier (less the dropped
-        targets), or the observed frontier when that is empty (or with :attr:`observed_targets`)."""
+        targets), or the observed frontier when that is empty."""
         self._fused = maps.low if fused_low is None else fused_low
         dropped = self.dropped(maps)
-        if self.observed_targets:
-            return View(maps, pose, frontier_mask(maps.low) & ~dropped, self.config, self._free)
         if self._committed is None or self._committed.shape != maps.low.shape:
             self._committed = np.zeros(maps.low.shape, dtype=bool)
         observed = frontier_mask(maps.low)
