@@ -20,6 +20,12 @@ of more than ``policy_max_detour_m`` (session 35) — and flies to that cell's g
 it. When no cell is valid the predictive expert's fallbacks apply (observed frontier, then done). The expert
 (:class:`~edge_explorer.plan.predictive.PredictiveFrontier`) decides from the same view, so its choices label the
 same decisions (:func:`expert_label`) for behaviour cloning.
+
+On a whole floor (:meth:`GoalPolicyPlanner.on_whole_floor`) the goal cells are valid near the *observed* frontier
+instead (``whole_floor_observed_targets``): the policy still sees the fused map, but a room the prediction filled
+is no longer left behind for a second pass along the corridor. That frontier also leads into slots the prediction
+had closed, where the follower may find no safe motion: goals that fail again and again at one spot give up the
+frontier they were after there (``whole_floor_stuck_failures``, :meth:`GoalPolicyPlanner.on_failure`).
 """
 
 from __future__ import annotations
@@ -56,6 +62,8 @@ class ConcurrentGoalPolicy(Protocol):
 
 
 _TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
+_STUCK_SPOT_M = 1.0  # failed goals with the vehicle this close to the first one's failure count as one stuck spot
+_STUCK_DROP_M = 5.0  # a stuck spot drops the failed targets' frontier piece within this distance of them
 _EXPERT_DEFAULTS = PredictiveConfig()
 
 
@@ -260,6 +268,20 @@ def best_cell_worth_a_look(
     return cell
 
 
+def frontier_piece(frontier: np.ndarray, target_cells: np.ndarray, radius_cells: float) -> np.ndarray:
+    """bool, ``frontier``'s shape: the cells of ``frontier`` 8-connected to the flat ``target_cells`` (those still
+    frontier) and within ``radius_cells`` of one of them."""
+    targets = np.zeros(frontier.shape, dtype=np.uint8)
+    cells = np.asarray(target_cells, dtype=np.int64)
+    targets.flat[cells[(cells >= 0) & (cells < frontier.size)]] = 1
+    _, labels = cv2.connectedComponents(frontier.astype(np.uint8), connectivity=8)
+    pieces = np.unique(labels[targets.astype(bool) & frontier])
+    r = int(math.ceil(radius_cells))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    near = cv2.dilate(targets, disk, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    return near & np.isin(labels, pieces[pieces > 0])
+
+
 def goal_at_cell(view: View, decision: GoalDecision, cell: int) -> Goal:
     """The goal of a valid flat goal cell: the path to its node, facing the frontier cells within
     :data:`_TARGET_RADIUS_M` of the node (its targets, done when 80 % of them are no frontier)."""
@@ -285,15 +307,39 @@ class GoalPolicyPlanner(PredictiveFrontier):
         super().__init__(config, table)
         self.policy = policy
         self.settings = config  # the goal choice's settings: ``config``, or its whole-floor variant
+        self._stuck: tuple[tuple[float, float], int] | None = None  # where goals failed in a row, and how many
 
     def reset(self) -> None:
         super().reset()
         self.settings = self.predictive
+        self._stuck = None
+
+    def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
+        """The expert's handling, after counting the failure: the ``stuck_failures``-th failed goal in a row with the
+        vehicle within :data:`_STUCK_SPOT_M` of the first one's failure drops the connected frontier within
+        :data:`_STUCK_DROP_M` of its targets for the flight. Each failure drops only its own targets, and a long
+        frontier strip the follower cannot reach would otherwise be tried a few cells at a time."""
+        limit = self.settings.stuck_failures
+        if limit > 0:
+            here = (pose[0], pose[1])
+            same = self._stuck is not None and math.dist(here, self._stuck[0]) <= _STUCK_SPOT_M
+            self._stuck = (self._stuck[0], self._stuck[1] + 1) if same and self._stuck is not None else (here, 1)
+            if self._stuck[1] >= limit:
+                dropped = self.dropped(view.maps)
+                dropped |= frontier_piece(
+                    view.frontier, goal.target_cells, _STUCK_DROP_M / view.maps.low_grid.resolution_m
+                )
+                self._stuck = None
+        return super().on_failure(goal, view, pose)
+
+    @property
+    def observed_targets(self) -> bool:
+        return self.settings.observed_targets
 
     def on_whole_floor(self) -> None:
         """On a whole floor every valid goal may be flown, not only those worth a look, goals are ranked with the
-        whole-floor weights of path cost and view gain, and only those near the nearest are chosen from
-        (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
+        whole-floor weights of path cost and view gain, only those near the nearest are chosen from, and the targets
+        are the observed frontier (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
         whole = self.predictive
         self.settings = dataclasses.replace(
             whole,
@@ -301,6 +347,8 @@ class GoalPolicyPlanner(PredictiveFrontier):
             policy_cost_weight_per_m=whole.whole_floor_cost_weight_per_m,
             policy_gain_weight=whole.whole_floor_gain_weight,
             policy_max_extra_m=whole.whole_floor_max_extra_m,
+            observed_targets=whole.whole_floor_observed_targets,
+            stuck_failures=whole.whole_floor_stuck_failures,
         )
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:

@@ -23,15 +23,15 @@ hands the maps to its planner unchanged, so the planner flies exactly as it did 
   steps on a generated val floor).
 * **Global layer.** When the planner has nothing left in its window, the route layer (:mod:`edge_explorer.plan.
   route`) finds the nearest target the planner would explore (:meth:`GoalPlanner.targets`: the observed frontier,
-  or the fused one for the predictive planners) outside the window along the observed 0.20 m map. The vehicle flies
-  towards it through the window (:class:`Transit`: the window's fine graph and the shared follower, to the last
-  route point before the route leaves the window), and each time the window moves the local planner looks first:
-  the route ends as soon as there is something to explore in the window. The transit's point only ever moves on
-  along the route (a window that moved back and forth would otherwise send the vehicle back and forth with it);
-  once the window holds no point of the route after it, the route ends and a new one starts from the vehicle. A
-  target is dropped for the flight when its route's end is reached without the local planner taking it, when the
-  fine graph cannot follow its route three times in a row, or when it was routed to four times (each progress
-  rule is bounded, so the flight always ends).
+  or the fused one for the predictive planners but the learned one on a whole floor) outside the window along the
+  observed 0.20 m map. The vehicle flies towards it through the window (:class:`Transit`: the window's fine graph
+  and the shared follower, to the last route point before the route leaves the window), and each time the window
+  moves the local planner looks first: the route ends as soon as there is something to explore in the window. The
+  transit's point only ever moves on along the route (a window that moved back and forth would otherwise send the
+  vehicle back and forth with it); once the window holds no point of the route after it, the route ends and a new
+  one starts from the vehicle. A target is dropped for the flight when its route's end is reached without the local
+  planner taking it, when the fine graph cannot follow its route three times in a row, or when it was routed to
+  four times (each progress rule is bounded, so the flight always ends).
 
 The flight ends when neither layer has a target left.
 

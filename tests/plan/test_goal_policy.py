@@ -8,11 +8,14 @@ import math
 import numpy as np
 import pytest
 
+from edge_explorer.plan.frontier import Goal
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS, GoalOptions
 from edge_explorer.plan.goal_policy import (
     GoalDecision,
     GoalPolicyPlanner,
     best_cell_worth_a_look,
+    frontier_piece,
+    goal_at_cell,
     goal_decision,
     nearest_goals,
     weighted_scores,
@@ -151,6 +154,33 @@ def _real_decision():
     view = planner.view(env.maps, env.pose)
     decision = goal_decision(view, env.pose, env.maps.low, 0, planner.config.goal_radius_m)
     return view, decision, env.maps.low
+
+
+def test_a_frontier_piece_is_the_connected_frontier_near_the_targets():
+    frontier = np.zeros((8, 30), dtype=bool)
+    frontier[2, :] = True  # a strip of 30 cells
+    frontier[6, :5] = True  # another one, not connected to it
+    piece = frontier_piece(frontier, np.array([2 * 30 + 0]), radius_cells=10.0)
+    assert piece[2, :11].all() and not piece[2, 11:].any()  # connected, and only within the radius
+    assert not piece[6].any()  # near, but a separate piece of frontier
+
+
+def test_goals_failing_again_and_again_at_one_spot_give_up_the_frontier_they_were_after():
+    # in a 0.75 m slot the follower found no safe motion and failed goal after goal a few cells further along one
+    # frontier strip, for 500 steps (kthwhole_50010535_PLAN1, session 54)
+    view, decision, _ = _real_decision()
+    planner = GoalPolicyPlanner(lambda o: nearest_first_scores(), PredictiveConfig(stuck_failures=3))
+    planner.reset()
+    assert not planner.dropped(view.maps).any()  # nothing dropped yet (as a view starts the flight's record)
+    cell = int(np.flatnonzero(decision.options.mask)[0])
+    chosen = goal_at_cell(view, decision, cell)
+    goal = Goal(chosen.path_xy_m, chosen.yaw_rad, chosen.target_cells[:1])  # one cell: its failure drops 3 × 3
+    piece = frontier_piece(view.frontier, goal.target_cells, 5.0 / view.maps.low_grid.resolution_m)
+    for k, pose in enumerate([(1.0, 1.5, 0.0), (3.0, 1.5, 0.0), (3.5, 1.5, 0.0), (3.0, 2.0, 0.0)]):
+        planner.on_failure(goal, view, pose)
+        dropped = planner.dropped(view.maps)
+        assert dropped[piece].all() == (k == 3)  # the third failure within 1 m of (3.0, 1.5) drops the piece
+    assert piece.sum() > 9  # more than a failure's own drop
 
 
 def _view_cells(view, decision, fused, cell: int) -> np.ndarray:  # noqa: ANN001 - the fixture's objects
