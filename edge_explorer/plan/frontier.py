@@ -324,15 +324,22 @@ class GoalPlanner:
         """The next goal after ``goal`` ended without its target seen. A back-off goal just ends (replan from
         where it got to). A vehicle that got stuck still far along the path from its goal — the follower failed
         to thread a passage from the way it came, which says nothing about the target — backs off into open space
-        and tries again (:data:`_MAX_RETREATS` times until some target is seen); otherwise :meth:`on_failure`."""
+        and tries again (:data:`_MAX_RETREATS` times until some target is seen); otherwise :meth:`on_failure`. A
+        goal the follower got stuck on is first reported to :meth:`on_stuck`."""
         if goal.retreat:
             return None
+        if not arrived:
+            self.on_stuck(goal, view, pose)
         if not arrived and self._retreats_left > 0 and remaining_path_m(goal.path_xy_m, pose[:2]) > _FAR_M:
             retreat = retreat_goal(view, pose, goal)
             if retreat is not None:
                 self._retreats_left -= 1
                 return retreat
         return self.on_failure(goal, view, pose)
+
+    def on_stuck(self, goal: Goal, view: View, pose: Pose) -> None:
+        """``goal`` failed with the vehicle short of its end: the follower found no safe motion on (it hovered) or
+        made no progress. Nothing here; the learned planner counts these (a stuck spot)."""
 
     def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
         """What to do when ``goal`` failed: drop its target (it cannot be seen from where the graph leads) and

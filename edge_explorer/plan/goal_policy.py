@@ -25,7 +25,7 @@ On a whole floor (:meth:`GoalPolicyPlanner.on_whole_floor`) the goal cells are v
 instead (``whole_floor_observed_targets``): the policy still sees the fused map, but a room the prediction filled
 is no longer left behind for a second pass along the corridor. That frontier also leads into slots the prediction
 had closed, where the follower may find no safe motion: goals that fail again and again at one spot give up the
-frontier they were after there (``whole_floor_stuck_failures``, :meth:`GoalPolicyPlanner.on_failure`).
+frontier they were after there (``whole_floor_stuck_failures``, :meth:`GoalPolicyPlanner.on_stuck`).
 """
 
 from __future__ import annotations
@@ -314,23 +314,21 @@ class GoalPolicyPlanner(PredictiveFrontier):
         self.settings = self.predictive
         self._stuck = None
 
-    def on_failure(self, goal: Goal, view: View, pose: Pose) -> Goal | None:
-        """The expert's handling, after counting the failure: the ``stuck_failures``-th failed goal in a row with the
-        vehicle within :data:`_STUCK_SPOT_M` of the first one's failure drops the connected frontier within
-        :data:`_STUCK_DROP_M` of its targets for the flight. Each failure drops only its own targets, and a long
-        frontier strip the follower cannot reach would otherwise be tried a few cells at a time."""
+    def on_stuck(self, goal: Goal, view: View, pose: Pose) -> None:
+        """Counts the goals the follower got stuck on: the ``stuck_failures``-th in a row with the vehicle within
+        :data:`_STUCK_SPOT_M` of the first one's spot drops the connected frontier within :data:`_STUCK_DROP_M` of
+        its targets for the flight. Each failure drops only its own targets, and a long frontier strip the follower
+        cannot reach would otherwise be tried a few cells at a time."""
         limit = self.settings.stuck_failures
-        if limit > 0:
-            here = (pose[0], pose[1])
-            same = self._stuck is not None and math.dist(here, self._stuck[0]) <= _STUCK_SPOT_M
-            self._stuck = (self._stuck[0], self._stuck[1] + 1) if same and self._stuck is not None else (here, 1)
-            if self._stuck[1] >= limit:
-                dropped = self.dropped(view.maps)
-                dropped |= frontier_piece(
-                    view.frontier, goal.target_cells, _STUCK_DROP_M / view.maps.low_grid.resolution_m
-                )
-                self._stuck = None
-        return super().on_failure(goal, view, pose)
+        if limit <= 0:
+            return
+        here = (pose[0], pose[1])
+        same = self._stuck is not None and math.dist(here, self._stuck[0]) <= _STUCK_SPOT_M
+        self._stuck = (self._stuck[0], self._stuck[1] + 1) if same and self._stuck is not None else (here, 1)
+        if self._stuck[1] >= limit:
+            radius_cells = _STUCK_DROP_M / view.maps.low_grid.resolution_m
+            self.dropped(view.maps)[...] |= frontier_piece(view.frontier, goal.target_cells, radius_cells)
+            self._stuck = None
 
     @property
     def observed_targets(self) -> bool:

@@ -151,11 +151,12 @@ class PredictiveConfig:
     # 1.00 × (session 54).
     observed_targets: bool = False
     whole_floor_observed_targets: bool = True
-    # the learned planner only: after this many failed goals with the vehicle still within 1 m of the first one's
-    # failure, the frontier near the last one's targets (its connected piece, within 5 m) is dropped for the flight.
-    # 0 turns it off. On a whole floor 3: the observed frontier leads into slots the prediction had closed, and in a
-    # 0.75 m one (kthwhole_50010535_PLAN1) the follower found no safe motion on, failed goal after goal a few cells
-    # further along the same frontier for 500 steps, and motion noise touched the walls 6 times (session 54).
+    # the learned planner only: after this many goals the follower got stuck on (hovered or made no progress) with
+    # the vehicle still within 1 m of the first one's spot, the frontier near the last one's targets (its connected
+    # piece, within 5 m) is dropped for the flight. 0 turns it off. On a whole floor 3: the observed frontier leads
+    # into slots the prediction had closed, and in a 0.75 m one (kthwhole_50010535_PLAN1) the follower found no safe
+    # motion on, failed goal after goal a few cells further along the same frontier for 500 steps, and motion noise
+    # touched the walls 6 times (session 54).
     stuck_failures: int = 0
     whole_floor_stuck_failures: int = 3
 

@@ -165,7 +165,7 @@ def test_a_frontier_piece_is_the_connected_frontier_near_the_targets():
     assert not piece[6].any()  # near, but a separate piece of frontier
 
 
-def test_goals_failing_again_and_again_at_one_spot_give_up_the_frontier_they_were_after():
+def test_goals_stuck_again_and_again_at_one_spot_give_up_the_frontier_they_were_after():
     # in a 0.75 m slot the follower found no safe motion and failed goal after goal a few cells further along one
     # frontier strip, for 500 steps (kthwhole_50010535_PLAN1, session 54)
     view, decision, _ = _real_decision()
@@ -177,7 +177,7 @@ def test_goals_failing_again_and_again_at_one_spot_give_up_the_frontier_they_wer
     goal = Goal(chosen.path_xy_m, chosen.yaw_rad, chosen.target_cells[:1])  # one cell: its failure drops 3 × 3
     piece = frontier_piece(view.frontier, goal.target_cells, 5.0 / view.maps.low_grid.resolution_m)
     for k, pose in enumerate([(1.0, 1.5, 0.0), (3.0, 1.5, 0.0), (3.5, 1.5, 0.0), (3.0, 2.0, 0.0)]):
-        planner.on_failure(goal, view, pose)
+        planner.on_stuck(goal, view, pose)
         dropped = planner.dropped(view.maps)
         assert dropped[piece].all() == (k == 3)  # the third failure within 1 m of (3.0, 1.5) drops the piece
     assert piece.sum() > 9  # more than a failure's own drop
