@@ -21,6 +21,7 @@ from edge_explorer.plan.window import (
     reaches_border,
 )
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv
+from edge_explorer.vehicle.dynamics import Action
 from edge_explorer.world.grid import FREE, LOW_RES_M, UNKNOWN, GridSpec, resolution_factor
 from edge_explorer.world.plan import FloorPlan, Rect
 from edge_explorer.world.raster import rasterize
@@ -129,6 +130,21 @@ def test_on_a_200_m_corridor_the_local_planner_sees_only_its_window_and_a_route_
     assert seen and max(max(s) for s in seen) * LOW_RES_M <= WindowConfig().size_m + 1e-9
     assert planner.route is not None and planner.route.path_xy_m[-1, 0] > 188.0  # on to the unknown far end
     assert planner.routes >= 1
+
+
+def test_a_step_whose_transits_all_fail_hovers_while_routes_are_left_and_ends_when_none_is():
+    # ending the flight there stopped a learned flight at 75 % coverage with 815 m² reachable (session 55)
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    maps = observed_up_to(raster, 190.0)
+    planner = build_planner("frontier")
+    planner.reset()
+    pose = (2.0, 1.5, 0.0)
+    actions = [planner.act(maps, pose, 0) for _ in range(14)]  # the local planner's full circle, then a route
+    assert planner.route is not None
+    planner.transit.act = lambda *a: None  # type: ignore[method-assign]  # the fine graph never follows a route
+    actions = [planner.act(maps, pose, 0) for _ in range(40)]
+    assert actions[0] == Action.HOVER  # the far end is still a target: try again next step
+    assert actions[-1] is None  # every failure counted towards dropping its target: the flight ended
 
 
 class _Recording(NearestFrontier):
