@@ -132,12 +132,17 @@ def test_on_a_200_m_corridor_the_local_planner_sees_only_its_window_and_a_route_
     assert planner.routes >= 1
 
 
-def test_a_step_whose_transits_all_fail_hovers_while_routes_are_left_and_ends_when_none_is():
-    # ending the flight there stopped a learned flight at 75 % coverage with 815 m² reachable (session 55)
-    raster = rasterize(corridor_plan(200.0), 0.05)
-    maps = observed_up_to(raster, 190.0)
+def frontier_in_a_200_m_corridor_known_to_190_m() -> tuple[ObservedMaps, WindowedPlanner]:
+    """A 200 m corridor observed up to 190 m, and a fresh Nearest Frontier in its hierarchy."""
+    maps = observed_up_to(rasterize(corridor_plan(200.0), 0.05), 190.0)
     planner = build_planner("frontier")
     planner.reset()
+    return maps, planner
+
+
+def test_a_step_whose_transits_all_fail_hovers_while_routes_are_left_and_ends_when_none_is():
+    # ending the flight there stopped a learned flight at 75 % coverage with 815 m² reachable (session 55)
+    maps, planner = frontier_in_a_200_m_corridor_known_to_190_m()
     pose = (2.0, 1.5, 0.0)
     actions = [planner.act(maps, pose, 0) for _ in range(14)]  # the local planner's full circle, then a route
     assert planner.route is not None
@@ -226,10 +231,7 @@ def test_on_a_whole_floor_what_the_prediction_filled_stays_a_target_of_the_learn
 
 def test_a_target_routed_to_four_times_is_dropped_for_the_next_nearest():
     # the loop breaker: a window that moved back and forth once routed to the same target 500 times
-    raster = rasterize(corridor_plan(200.0), 0.05)
-    maps = observed_up_to(raster, 190.0)
-    planner = build_planner("frontier")
-    planner.reset()
+    maps, planner = frontier_in_a_200_m_corridor_known_to_190_m()
     pose = (2.0, 1.5, 0.0)
     planner.act(maps, pose, 0)  # the window takes over the maps
     ends = []
