@@ -24,8 +24,8 @@ same decisions (:func:`expert_label`) for behaviour cloning.
 On a whole floor (:meth:`GoalPolicyPlanner.on_whole_floor`) the goal cells are valid near the *observed* frontier
 instead (``whole_floor_observed_targets``): the policy still sees the fused map, but a room the prediction filled
 is no longer left behind for a second pass along the corridor. That frontier also leads into slots the prediction
-had closed, where the follower may find no safe motion: goals that fail again and again at one spot give up the
-frontier they were after there (``whole_floor_stuck_failures``, :meth:`GoalPolicyPlanner.on_stuck`).
+had closed, where the follower may find no safe motion: goals it gets stuck on again and again at one spot give up
+the frontier they were after there (``whole_floor_stuck_failures``, :meth:`GoalPolicyPlanner.on_stuck`).
 """
 
 from __future__ import annotations
@@ -62,8 +62,8 @@ class ConcurrentGoalPolicy(Protocol):
 
 
 _TARGET_RADIUS_M = 1.0  # frontier cells this close to a chosen goal are its target
-_STUCK_SPOT_M = 1.0  # failed goals with the vehicle this close to the first one's failure count as one stuck spot
-_STUCK_DROP_M = 5.0  # a stuck spot drops the failed targets' frontier piece within this distance of them
+_STUCK_SPOT_M = 1.0  # stuck goals with the vehicle this close to the first one's spot count as one stuck spot
+_STUCK_DROP_M = 5.0  # a stuck spot drops the stuck targets' frontier piece within this distance of them
 _EXPERT_DEFAULTS = PredictiveConfig()
 
 
@@ -307,7 +307,7 @@ class GoalPolicyPlanner(PredictiveFrontier):
         super().__init__(config, table)
         self.policy = policy
         self.settings = config  # the goal choice's settings: ``config``, or its whole-floor variant
-        self._stuck: tuple[tuple[float, float], int] | None = None  # where goals failed in a row, and how many
+        self._stuck: tuple[tuple[float, float], int] | None = None  # where goals got stuck in a row, and how many
 
     def reset(self) -> None:
         super().reset()
@@ -336,8 +336,9 @@ class GoalPolicyPlanner(PredictiveFrontier):
 
     def on_whole_floor(self) -> None:
         """On a whole floor every valid goal may be flown, not only those worth a look, goals are ranked with the
-        whole-floor weights of path cost and view gain, only those near the nearest are chosen from, and the targets
-        are the observed frontier (:class:`PredictiveConfig`'s ``whole_floor_`` settings)."""
+        whole-floor weights of path cost and view gain, only those near the nearest are chosen from, the targets
+        are the observed frontier, and a stuck spot gives up its frontier (:class:`PredictiveConfig`'s ``whole_floor_``
+        settings)."""
         whole = self.predictive
         self.settings = dataclasses.replace(
             whole,
