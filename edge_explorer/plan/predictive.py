@@ -117,7 +117,10 @@ class PredictiveConfig:
     # the large rooms and leaves the row of small offices beside it for a second pass. A heavier cost weight did not
     # measurably help: the val floors above less floor 21 (which looped at 0.3 before the window's keep margin), cost
     # weight 0.3 / 1.0 / 2.0: path to 95 % coverage ×0.82 / ×0.83 / ×0.86, to 95 % correct coverage ×0.93 / ×0.97 /
-    # ×1.09 of Nearest Frontier's, floor-to-floor spread ±0.2 (session 51), so the window's weights stay.
+    # ×1.09 of Nearest Frontier's, floor-to-floor spread ±0.2 (session 51), so the window's weights stay. With
+    # observed targets (below), on the 8 val floors named at whole_floor_max_extra_m, 1.0 against 0.3: ×1.04 /
+    # ×1.02 / ×1.04 against ×1.10 / ×0.95 / ×1.11 to 95 % coverage / 90 % / 95 % correct coverage, single floors
+    # ±0.4 (session 56).
     whole_floor_cost_weight_per_m: float = 0.3
     whole_floor_gain_weight: float = 2.0
     # the learned planner only: it chooses among the valid goals whose path costs at most policy_max_extra_m more than
@@ -128,6 +131,8 @@ class PredictiveConfig:
     # correct coverage: off ×1.25 / ×1.27 / ×1.27, 15 m ×1.13 / ×1.10 / ×1.19, 5 m ×1.16 / ×1.12 / ×1.16 (session
     # 52; the floor-to-floor spread is ±0.2, so 15 and 5 cannot be told apart; 15 m kept the area mapped at 100 m).
     # On the 15 test floors it made no difference: ×1.19 / ×1.19 / ×1.20 off, ×1.20 / ×1.20 / ×1.19 at 15 m.
+    # With observed targets (below), 5 m against 15 m on the same val floors: ×1.12 / ×1.04 / ×1.12 against ×1.10 /
+    # ×0.95 / ×1.11 (session 56).
     # Tried and not kept (session 54): on a whole floor, the learned planner targeting the observed frontier instead
     # of the fused one (a room the prediction filled is then not left behind). Paths ÷ Nearest Frontier's to 95 %
     # coverage / 90 % / 95 % correct coverage: 8 val floors (1, 4, 8, 14, 19, 24, 32, 38) ×1.24 / ×1.21 / ×1.23 →
