@@ -7,9 +7,11 @@ window ran out of targets, or it moved while the vehicle was in transit), not on
 observed OCCUPIED cell (two cells by default, so a 0.8 m door stays open at this resolution), 8-connected, edges
 weighted as the fine graph weights them; the vehicle's own cell is always a node. A route (:func:`nearest_route`)
 leads to the reachable node nearest along the graph among those within ``goal_radius_m`` of a target cell — Nearest
-Frontier at building scale, the global half of a local-first hierarchy like TARE's. The route only leads the way:
-the vehicle flies it through the window's fine graph and follower (:class:`~edge_explorer.plan.window.Transit`),
-so the follower's safety rules hold.
+Frontier at building scale, the global half of a local-first hierarchy like TARE's. A vehicle whose cell reaches
+no target (among cells the map has not seen FREE, or too near a wall) is routed from the nodes within ``escape_m``
+that its cell reaches without crossing an observed wall (:func:`escape_sources`). The route only leads the way: the
+vehicle flies it through the window's fine graph and follower (:class:`~edge_explorer.plan.window.Transit`), so the
+follower's safety rules hold.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse.csgraph import dijkstra
 
 from edge_explorer.plan.graph import GraphConfig, PlanningGraph, Traversable
 from edge_explorer.world.flight_space import centre_clearance_m
@@ -31,11 +34,17 @@ class RouteConfig:
 
     min_clearance_m: float = 0.4  # a route cell's centre keeps this far from the centre of every OCCUPIED cell
     goal_radius_m: float = 0.6  # a route ends this close to a target cell
+    # when the vehicle's own cell reaches no target on the graph (it sits among cells the 0.20 m map has not seen
+    # FREE, or too near a wall), the route may start from the graph's nodes this close to it that its cell reaches
+    # through cells not observed OCCUPIED (:func:`escape_sources`): a learned flight on a real whole floor ended
+    # with a "planner stall" at 41.8 % coverage and 3,120 m² reachable, its vehicle in a 0.6 m unseen slot between
+    # two walls whose cell reached 8 nodes (kthwhole_50037765_PLAN3, run 1, session 56)
+    escape_m: float = 2.0
     graph: GraphConfig = GraphConfig(factor=1)
 
     def __post_init__(self) -> None:
-        if self.min_clearance_m < 0 or self.goal_radius_m <= 0:
-            raise ValueError("min_clearance_m must be ≥ 0 and goal_radius_m > 0")
+        if self.min_clearance_m < 0 or self.goal_radius_m <= 0 or self.escape_m < 0:
+            raise ValueError("min_clearance_m and escape_m must be ≥ 0 and goal_radius_m > 0")
 
 
 @dataclass(frozen=True)
@@ -79,11 +88,21 @@ def nearest_route(
     if len(candidates) == 0:
         return None
     cost, predecessors = graph.search([start])
-    reachable = candidates[np.isfinite(cost[0, candidates])]
+    cost, predecessors = cost[0], predecessors[0]
+    if not np.isfinite(cost[candidates]).any():  # the vehicle's cell is cut off: start from the nodes near it
+        sources = escape_sources(low, grid, graph, pose_xy_m, config.escape_m)
+        if len(sources) == 0:
+            return None
+        cost, predecessors, _ = dijkstra(
+            graph.graph, directed=False, indices=sources, return_predecessors=True, min_only=True
+        )
+    reachable = candidates[np.isfinite(cost[candidates])]
     if len(reachable) == 0:
         return None
-    end = int(reachable[np.argmin(cost[0, reachable])])
-    path = graph.path_xy_m(predecessors[0], end)
+    end = int(reachable[np.argmin(cost[reachable])])
+    path = graph.path_xy_m(predecessors, end)
+    if graph.node_at(*path[0]) != start:  # an escape: the route starts at the vehicle's cell all the same
+        path = np.vstack([graph.node_xy_m(np.array([start])), path])
     rows, cols = np.nonzero(targets)
     x, y = grid.center_of(rows, cols)
     close = np.hypot(x - path[-1, 0], y - path[-1, 1]) <= config.goal_radius_m + grid.resolution_m
@@ -97,3 +116,22 @@ def via_index(path_xy_m: np.ndarray, inside: tuple[float, float, float, float]) 
     x, y = path_xy_m[:, 0], path_xy_m[:, 1]
     out = np.flatnonzero((x < x0) | (x > x1) | (y < y0) | (y > y1))
     return len(path_xy_m) - 1 if len(out) == 0 else max(int(out[0]) - 1, 0)
+
+
+def escape_sources(
+    low: np.ndarray, grid: GridSpec, graph: PlanningGraph, pose_xy_m: tuple[float, float], escape_m: float
+) -> np.ndarray:
+    """The route graph's nodes within ``escape_m`` of the vehicle that its cell reaches through 4-connected cells
+    not observed OCCUPIED (so never through a wall the map shows): where a cut-off vehicle's route may start."""
+    row, col = (int(v) for v in grid.cell_of(*pose_xy_m))
+    k = int(math.ceil(escape_m / grid.resolution_m))
+    r0, c0 = max(row - k, 0), max(col - k, 0)
+    patch = np.ascontiguousarray(low[r0 : row + k + 1, c0 : col + k + 1] != OCCUPIED).astype(np.uint8)
+    if not (0 <= row - r0 < patch.shape[0] and 0 <= col - c0 < patch.shape[1]):
+        return np.zeros(0, dtype=np.int64)
+    patch[row - r0, col - c0] = 1
+    _, labels = cv2.connectedComponents(patch, connectivity=4)
+    rows, cols = np.nonzero(labels == labels[row - r0, col - c0])
+    near = np.hypot(rows + r0 - row, cols + c0 - col) * grid.resolution_m <= escape_m
+    nodes = graph.node_of[rows[near] + r0, cols[near] + c0]
+    return np.unique(nodes[nodes >= 0])
