@@ -120,7 +120,10 @@ class PredictiveConfig:
     # ×1.09 of Nearest Frontier's, floor-to-floor spread ±0.2 (session 51), so the window's weights stay. With
     # observed targets (below), on the 8 val floors named at whole_floor_max_extra_m, 1.0 against 0.3: ×1.04 /
     # ×1.02 / ×1.04 against ×1.10 / ×0.95 / ×1.11 to 95 % coverage / 90 % / 95 % correct coverage, single floors
-    # ±0.4 (session 56).
+    # ±0.4 (session 56). On those 8 and the 8 named at whole_floor_min_gain_cells together (16 val floors, mean of
+    # the per-floor ratios), against today's ×0.93 / ×0.90 / ×0.97: cost weight 1.0 ×0.93 / ×0.97 / ×0.97; gain
+    # weight 0 ×1.03 / ×1.16 / ×1.10 (correct area at 200 m 1.23 → 0.95 ×); whole_floor_min_gain_cells 10 ×0.99 /
+    # ×1.01 / ×1.06 (session 57). None is kept.
     whole_floor_cost_weight_per_m: float = 0.3
     whole_floor_gain_weight: float = 2.0
     # the learned planner only: it chooses among the valid goals whose path costs at most policy_max_extra_m more than
