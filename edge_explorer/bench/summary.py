@@ -347,5 +347,6 @@ def markdown_oracle(summary: dict[str, Any], methods: Sequence[str], oracle_m: d
             cells.append("–" if avg is None or ratio is None else f"{avg:.1f} (×{ratio:.2f})")
         lines.append(f"| {plan} | {oracle_m[plan]:.1f} | " + " | ".join(cells) + " |")
     means = ["–" if ratios[m]["mean"] is None else f"×{ratios[m]['mean']:.2f}" for m in methods]
-    lines.append(f"| mean ratio ({len(oracle_m)} plans) | 1 | " + " | ".join(means) + " |")
+    shown = sum(plan in oracle_m for plan in summary["plans"])
+    lines.append(f"| mean ratio ({shown} plans) | 1 | " + " | ".join(means) + " |")
     return "\n".join(lines) + "\n"

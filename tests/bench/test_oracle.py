@@ -84,6 +84,13 @@ def test_ratios_pair_by_building():
     assert "×2.50" in table and "| B | 10.0 | 30.0 (×3.00) | – |" in table
 
 
+def test_mean_row_counts_the_buildings_shown():
+    """Oracle paths of more buildings than the bench flew: the mean row names the buildings it averages."""
+    summary = {"plans": {"A": {"f": {"path_at_coverage_m": {"avg": 20.0}}}}}
+    table = markdown_oracle(summary, ["f"], {"A": 10.0, "B": 10.0, "C": 5.0})
+    assert "| mean ratio (1 plans) | 1 | ×2.00 |" in table
+
+
 def test_cli_writes_the_oracle_and_the_ratios(tmp_path, capsys):
     plan = tmp_path / "rooms.json"
     save_plan_json(two_room_plan(), plan)
