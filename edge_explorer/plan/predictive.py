@@ -158,6 +158,10 @@ class PredictiveConfig:
     # all 8 floors), correct area at 100 / 200 / 400 / 800 m 1.30 / 1.15 / 1.07 / 0.96 × → 1.31 / 1.16 / 1.17 /
     # 1.00 × (session 54). The 32 test floors: ×1.19 / ×1.17 / ×1.20 → ×1.17 / ×1.11 / ×1.16, 2 → 0 collisions; the
     # 7 real whole floors: ×1.06 / ×1.09 / ×1.05 → ×1.08 / ×1.02 / ×1.08 (3 floors reached by both; session 55).
+    # Tried and not kept (session 57): the fused frontier first anywhere on the floor, the rest of the observed
+    # frontier once none was left (the global layer passed over windows that held none). Val floor 1 flew 1,319 m to
+    # 95 % coverage against 1,235 m: the prediction covers only the predictor's square around the vehicle, so far
+    # from it every observed frontier cell is a fused one, and the routes went back and forth between the two.
     observed_targets: bool = False
     whole_floor_observed_targets: bool = True
     # the learned planner only: after this many goals the follower got stuck on (hovered or made no progress) with
