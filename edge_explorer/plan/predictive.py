@@ -123,7 +123,8 @@ class PredictiveConfig:
     # ±0.4 (session 56). On those 8 and the 8 named at whole_floor_min_gain_cells together (16 val floors, mean of
     # the per-floor ratios), against today's ×0.93 / ×0.90 / ×0.97: cost weight 1.0 ×0.93 / ×0.97 / ×0.97; gain
     # weight 0 ×1.03 / ×1.16 / ×1.10 (correct area at 200 m 1.23 → 0.95 ×); whole_floor_min_gain_cells 10 ×0.99 /
-    # ×1.01 / ×1.06 (session 57). None is kept.
+    # ×1.01 / ×1.06 (session 57); gain weight 4 ×1.02 / ×1.01 / ×1.10 (area at 200 m 1.30 ×, at 800 m 0.94 ×); cost
+    # weight 0.1 ×1.01 / ×1.02 / ×1.07 (session 58). None is kept.
     whole_floor_cost_weight_per_m: float = 0.3
     whole_floor_gain_weight: float = 2.0
     # the learned planner only: it chooses among the valid goals whose path costs at most policy_max_extra_m more than
@@ -135,7 +136,9 @@ class PredictiveConfig:
     # 52; the floor-to-floor spread is ±0.2, so 15 and 5 cannot be told apart; 15 m kept the area mapped at 100 m).
     # On the 15 test floors it made no difference: ×1.19 / ×1.19 / ×1.20 off, ×1.20 / ×1.20 / ×1.19 at 15 m.
     # With observed targets (below), 5 m against 15 m on the same val floors: ×1.12 / ×1.04 / ×1.12 against ×1.10 /
-    # ×0.95 / ×1.11 (session 56).
+    # ×0.95 / ×1.11 (session 56). 0 m (the nearest valid goal, Nearest Frontier's choice in the window) on the 16 val
+    # floors named at whole_floor_cost_weight_per_m: ×0.98 / ×1.05 / ×1.05 against today's ×0.93 / ×0.90 / ×0.97,
+    # correct area at 200 m 1.23 → 1.08 ×, 1 collision (session 58).
     # Tried and not kept (session 54): on a whole floor, the learned planner targeting the observed frontier instead
     # of the fused one (a room the prediction filled is then not left behind). Paths ÷ Nearest Frontier's to 95 %
     # coverage / 90 % / 95 % correct coverage: 8 val floors (1, 4, 8, 14, 19, 24, 32, 38) ×1.24 / ×1.21 / ×1.23 →
