@@ -241,10 +241,9 @@ def test_final_heading_only_counts_at_the_path_end(table):
     assert steps_to_end <= 8  # 3 m at about 0.5 m per step, without stops
 
 
-def within_noise(table, blocked, grid, pose, previous, action):
-    """The mean step of ``action`` and its drift, shifted the follower's ``noise_sigmas`` standard deviations in 8
-    directions, stay out of ``blocked``."""
-    sigmas = FollowConfig().noise_sigmas
+def within_noise(table, blocked, grid, pose, previous, action, sigmas=FollowConfig().noise_sigmas):
+    """The mean step of ``action`` and its drift, shifted ``sigmas`` standard deviations (by default the
+    follower's ``noise_sigmas``) in 8 directions, stay out of ``blocked``."""
     end = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
     drift = dynamics.body_to_map(*end, *table.mean_step(action, Action.HOVER))
     std_m = math.hypot(table.pos_std_m[previous, action], table.pos_std_m[action, Action.HOVER])
@@ -283,3 +282,53 @@ def test_prefers_motions_that_motion_noise_cannot_push_into_the_band(rooms, tabl
             violations[robust] += not within_noise(table, blocked, raster.grid, pose, previous, action)
     assert violations[True] == 0
     assert violations[False] > 0
+
+
+def test_without_a_fully_robust_step_takes_the_most_robust_one(rooms, table):
+    """Close to a wall, where no first step keeps the full ``noise_sigmas`` margin (a tight passage, or noise
+    already pushed the vehicle in), the follower takes a step that keeps as many standard deviations (2, 1, 0 of
+    the ladder) as the most robust one does; choosing by the path cost alone (``noise_sigmas=0``) does not always."""
+    raster, free = rooms
+    rng = np.random.default_rng(3)
+    blocked = ego.inflate_codes(raster.truth_codes(), 0.05, 0.25) != -1
+    near_wall = np.argwhere(free.known_free & (free.clearance_m >= 0.30) & (free.clearance_m <= 0.36))
+    sigmas = FollowConfig().noise_sigmas
+    rungs = (2 * sigmas / 3, sigmas / 3, 0.0)
+
+    def rung(pose, previous, action):
+        return next((s for s in rungs if within_noise(table, blocked, raster.grid, pose, previous, action, s)), -1.0)
+
+    def mean_safe(pose, previous, action):
+        """The follower's own test for a first step: its mean motion and drift keep the safe distance."""
+        unsafe = free.unsafe_mask(pose[0], pose[1], FollowConfig().safe_distance_m, FollowConfig().unseen_clearance_m)
+        end = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
+        drift = dynamics.body_to_map(*end, *table.mean_step(action, Action.HOVER))
+        return not any(
+            (a[0], a[1]) != (b[0], b[1]) and dynamics.swept_path_blocked(unsafe, raster.grid, a[:2], b[:2])
+            for a, b in ((pose, end), (end, drift))
+        )
+
+    shortfalls = {True: 0, False: 0}
+    checked = 0
+    for _ in range(5000):
+        if checked >= 40:
+            break
+        row, col = near_wall[rng.integers(len(near_wall))]
+        x, y = (float(v) for v in raster.grid.center_of(row, col))
+        pose, previous = (x, y, float(rng.uniform(-math.pi, math.pi))), int(rng.integers(3, 6))
+        if any(within_noise(table, blocked, raster.grid, pose, previous, a) for a in range(6)):
+            continue  # a fully robust step exists: the preference above
+        safe = [a for a in range(6) if mean_safe(pose, previous, a)]
+        if not safe:
+            continue  # nothing to choose from: the follower hovers
+        best = max(rung(pose, previous, a) for a in safe)
+        bearing, distance = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 3.0)
+        target = np.array([[x + distance * math.cos(bearing), y + distance * math.sin(bearing)]])
+        checked += 1
+        for graded in (True, False):
+            config = FollowConfig() if graded else FollowConfig(noise_sigmas=0.0)
+            action = choose_action(table, pose, previous, target, free, config)
+            shortfalls[graded] += rung(pose, previous, action) < best
+    assert checked >= 40
+    assert shortfalls[True] == 0
+    assert shortfalls[False] > 0
