@@ -241,9 +241,10 @@ def test_final_heading_only_counts_at_the_path_end(table):
     assert steps_to_end <= 8  # 3 m at about 0.5 m per step, without stops
 
 
-def within_noise(table, blocked, grid, pose, previous, action, sigmas=FollowConfig().noise_sigmas):
+def within_noise(table, blocked, grid, pose, previous, action, sigmas=None):
     """The mean step of ``action`` and its drift, shifted ``sigmas`` standard deviations (by default the
     follower's ``noise_sigmas``) in 8 directions, stay out of ``blocked``."""
+    sigmas = FollowConfig().noise_sigmas if sigmas is None else sigmas
     end = dynamics.body_to_map(*pose, *table.mean_step(previous, action))
     drift = dynamics.body_to_map(*end, *table.mean_step(action, Action.HOVER))
     std_m = math.hypot(table.pos_std_m[previous, action], table.pos_std_m[action, Action.HOVER])
