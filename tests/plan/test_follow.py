@@ -258,6 +258,20 @@ def within_noise(table, blocked, grid, pose, previous, action, sigmas=None):
     return True
 
 
+def pose_near(rng, raster, cells, previous_actions):
+    """A random pose on one of ``cells`` (row, col) with a random heading, and a previous action among
+    ``previous_actions``."""
+    row, col = cells[rng.integers(len(cells))]
+    x, y = (float(v) for v in raster.grid.center_of(row, col))
+    return (x, y, float(rng.uniform(-math.pi, math.pi))), int(rng.choice(previous_actions))
+
+
+def target_near(rng, pose):
+    """A one-point path 0.5–3 m from ``pose`` in a random direction."""
+    bearing, distance = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 3.0)
+    return np.array([[pose[0] + distance * math.cos(bearing), pose[1] + distance * math.sin(bearing)]])
+
+
 def test_prefers_motions_that_motion_noise_cannot_push_into_the_band(rooms, table):
     """Near walls, whenever some first step keeps the NON_FLIGHT band out of reach of ``noise_sigmas`` standard
     deviations of its motion noise, the follower takes such a step; without the preference (``noise_sigmas=0``) it
@@ -269,13 +283,10 @@ def test_prefers_motions_that_motion_noise_cannot_push_into_the_band(rooms, tabl
     violations = {True: 0, False: 0}
     checked = 0
     while checked < 60:
-        row, col = near_wall[rng.integers(len(near_wall))]
-        x, y = (float(v) for v in raster.grid.center_of(row, col))
-        pose, previous = (x, y, float(rng.uniform(-math.pi, math.pi))), int(rng.integers(6))
+        pose, previous = pose_near(rng, raster, near_wall, range(6))
         if not any(within_noise(table, blocked, raster.grid, pose, previous, a) for a in range(6)):
             continue  # nothing robust to prefer
-        bearing, distance = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 3.0)
-        target = np.array([[x + distance * math.cos(bearing), y + distance * math.sin(bearing)]])
+        target = target_near(rng, pose)
         checked += 1
         for robust in (True, False):
             config = FollowConfig() if robust else FollowConfig(noise_sigmas=0.0)
@@ -314,17 +325,14 @@ def test_without_a_fully_robust_step_takes_the_most_robust_one(rooms, table):
     for _ in range(5000):
         if checked >= 40:
             break
-        row, col = near_wall[rng.integers(len(near_wall))]
-        x, y = (float(v) for v in raster.grid.center_of(row, col))
-        pose, previous = (x, y, float(rng.uniform(-math.pi, math.pi))), int(rng.integers(3, 6))
+        pose, previous = pose_near(rng, raster, near_wall, range(3, 6))
         if any(within_noise(table, blocked, raster.grid, pose, previous, a) for a in range(6)):
             continue  # a fully robust step exists: the preference above
         safe = [a for a in range(6) if mean_safe(pose, previous, a)]
         if not safe:
             continue  # nothing to choose from: the follower hovers
         best = max(rung(pose, previous, a) for a in safe)
-        bearing, distance = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 3.0)
-        target = np.array([[x + distance * math.cos(bearing), y + distance * math.sin(bearing)]])
+        target = target_near(rng, pose)
         checked += 1
         for graded in (True, False):
             config = FollowConfig() if graded else FollowConfig(noise_sigmas=0.0)
