@@ -199,7 +199,7 @@ def test_a_short_run_says_why(rooms, monkeypatch):
     record = explore.run_episode(rooms, capped)
     why = record["why"]
     assert record["ending"] == "step_cap" and why["reason"] == "step_limit"
-    assert why["text"].startswith("step limit 5 reached") and why["unexplored_m2"] > 5.0
+    assert why["text"].startswith("step limit 5 reached") and why["unexplored_m2"] > 2.0
     assert 0 < why["unexplored_reachable_m2"] < why["unexplored_m2"]
 
     monkeypatch.setitem(explore.PLANNERS, "frontier", PlannerEntry("gives up", False, _GivesUp))
