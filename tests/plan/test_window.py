@@ -243,6 +243,28 @@ def test_a_target_routed_to_four_times_is_dropped_for_the_next_nearest():
     assert planner.route.path_xy_m[-1, 0] > 188.0
 
 
+def test_a_target_the_local_planner_declined_in_its_window_counts_as_a_route_and_is_dropped_at_last():
+    # two such targets far apart took a learned flight back and forth for about 700 m on a real floor (session 59)
+    raster = rasterize(corridor_plan(200.0), 0.05)
+    codes = raster.truth_codes()
+    codes[raster.grid.cell_of(0.0, 1.0)[0] : raster.grid.cell_of(0.0, 2.0)[0], 160:170] = UNKNOWN  # x 8-8.5 m
+    codes[:, raster.grid.cell_of(190.0, 0.0)[1] :] = UNKNOWN
+    factor = resolution_factor(raster.grid.resolution_m, LOW_RES_M)
+    maps = ObservedMaps(raster.grid, raster.grid.coarsened(factor), codes, coarsen_codes(codes, factor))
+    planner = build_planner("frontier")
+    planner.reset()
+    pose = (2.0, 1.5, 0.0)
+    planner.act(maps, pose, 0)  # the window takes over the maps
+    pocket = planner.local.targets(maps.low, None) & planner._inside()
+    assert pocket.any()  # the unknown patch at 8 m is a target in the window
+    for _ in range(4):
+        assert planner._new_route(maps, pose, None)
+        assert planner.route.path_xy_m[-1, 0] > 100.0  # the routes lead beyond the window, not to the pocket
+        assert not planner._dropped[pocket].any()
+    planner._new_route(maps, pose, None)
+    assert planner._dropped[pocket].all()  # declined a fifth time: dropped for the flight
+
+
 def test_when_the_window_left_the_transits_point_it_leads_on_along_the_route_never_back():
     # a route whose start and transit point the window had left sent the vehicle back to the route's start; on a
     # generated test floor it flew back and forth between the two for 6,000 steps
