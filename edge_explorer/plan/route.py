@@ -7,9 +7,7 @@ window ran out of targets, or it moved while the vehicle was in transit), not on
 observed OCCUPIED cell (two cells by default, so a 0.8 m door stays open at this resolution), 8-connected, edges
 weighted as the fine graph weights them; the vehicle's own cell is always a node. A route (:func:`nearest_route`)
 leads to the reachable node nearest along the graph among those within ``goal_radius_m`` of a target cell — Nearest
-Frontier at building scale, the global half of a local-first hierarchy like TARE's. Only targets that cells observed
-FREE join to the reachable nodes count (:func:`open_targets`): a FREE cell walled off from them is a place no view
-from the flight space adds to. A vehicle whose cell reaches
+Frontier at building scale, the global half of a local-first hierarchy like TARE's. A vehicle whose cell reaches
 no target (among cells the map has not seen FREE, or too near a wall) is routed from the nodes within ``escape_m``
 that its cell reaches without crossing an observed wall (:func:`escape_sources`). The route only leads the way: the
 vehicle flies it through the window's fine graph and follower (:class:`~edge_explorer.plan.window.Transit`), so the
@@ -74,62 +72,41 @@ def route_graph(low: np.ndarray, grid: GridSpec, pose_xy_m: tuple[float, float],
 def nearest_route(
     low: np.ndarray, grid: GridSpec, targets: np.ndarray, pose_xy_m: tuple[float, float], config: RouteConfig
 ) -> Route | None:
-    """The route to the nearest reachable node within ``goal_radius_m`` of a ``targets`` cell (bool on ``grid``) that
-    the cells observed FREE connect to the reachable nodes (:func:`open_targets`), ``None`` when there is none."""
+    """The route to the nearest reachable node within ``goal_radius_m`` of a ``targets`` cell (bool on ``grid``),
+    ``None`` when no target is reachable."""
     if not targets.any():
         return None
     graph = route_graph(low, grid, pose_xy_m, config)
     start = graph.node_at(*pose_xy_m)
     if start < 0:
         return None
+    radius = max(int(math.ceil(config.goal_radius_m / grid.resolution_m)), 1)
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    near = cv2.dilate(targets.astype(np.uint8), disk, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    candidates = graph.node_of[near]
+    candidates = candidates[candidates >= 0]
+    if len(candidates) == 0:
+        return None
     cost, predecessors = graph.search([start])
     cost, predecessors = cost[0], predecessors[0]
-    kept, candidates = _candidates(low, grid, graph, targets, cost, config)
-    if len(candidates) == 0:  # the vehicle's cell is cut off: start from the nodes near it
+    if not np.isfinite(cost[candidates]).any():  # the vehicle's cell is cut off: start from the nodes near it
         sources = escape_sources(low, grid, graph, pose_xy_m, config.escape_m)
         if len(sources) == 0:
             return None
         cost, predecessors, _ = dijkstra(
             graph.graph, directed=False, indices=sources, return_predecessors=True, min_only=True
         )
-        kept, candidates = _candidates(low, grid, graph, targets, cost, config)
-        if len(candidates) == 0:
-            return None
-    end = int(candidates[np.argmin(cost[candidates])])
+    reachable = candidates[np.isfinite(cost[candidates])]
+    if len(reachable) == 0:
+        return None
+    end = int(reachable[np.argmin(cost[reachable])])
     path = graph.path_xy_m(predecessors, end)
     if graph.node_at(*path[0]) != start:  # an escape: the route starts at the vehicle's cell all the same
         path = np.vstack([graph.node_xy_m(np.array([start])), path])
-    rows, cols = np.nonzero(kept)
+    rows, cols = np.nonzero(targets)
     x, y = grid.center_of(rows, cols)
     close = np.hypot(x - path[-1, 0], y - path[-1, 1]) <= config.goal_radius_m + grid.resolution_m
     return Route(path, np.ravel_multi_index((rows[close], cols[close]), targets.shape))
-
-
-def open_targets(low: np.ndarray, targets: np.ndarray, reached_cells: np.ndarray) -> np.ndarray:
-    """The ``targets`` (bool) that 4-connected cells observed FREE in ``low`` join to one of ``reached_cells`` (flat
-    indices): where the vehicle can fly to look further. A FREE cell walled off from them is not: a sliver between two
-    wall lines or a strip of the outside, seen through a gap in a wall at 0.05 m that the 0.20 m map shows closed. On
-    a real whole floor 130 of the 146 targets left at 94 % coverage that no view could add to were such cells, and
-    the route led to them across the wall, to a node within ``goal_radius_m`` (kthwhole_50010535_PLAN1, session 60)."""
-    _, labels = cv2.connectedComponents((low == FREE).astype(np.uint8), connectivity=4)
-    reached = np.unique(labels.flat[reached_cells])
-    return targets & np.isin(labels, reached[reached > 0])
-
-
-def _candidates(
-    low: np.ndarray, grid: GridSpec, graph: PlanningGraph, targets: np.ndarray, cost: np.ndarray, config: RouteConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """The open targets given the search's node ``cost`` (inf: not reached), and the reached nodes within
-    ``goal_radius_m`` of one of them."""
-    nodes = np.flatnonzero(graph.node_of >= 0)
-    reached = nodes[np.isfinite(cost[graph.node_of.flat[nodes]])]
-    kept = open_targets(low, targets, reached)
-    radius = max(int(math.ceil(config.goal_radius_m / grid.resolution_m)), 1)
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    near = cv2.dilate(kept.astype(np.uint8), disk, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
-    candidates = graph.node_of[near]
-    candidates = candidates[candidates >= 0]
-    return kept, candidates[np.isfinite(cost[candidates])]
 
 
 def via_index(path_xy_m: np.ndarray, inside: tuple[float, float, float, float]) -> int:

@@ -31,27 +31,3 @@ def test_a_vehicle_cut_off_in_an_unseen_slot_is_routed_out_the_way_the_slot_lead
     assert np.ravel_multi_index((10, 50), low.shape) in route.target_cells
     rows, cols = (np.asarray(v) for v in grid.cell_of(route.path_xy_m[:, 0], route.path_xy_m[:, 1]))
     assert (low[rows, cols] != OCCUPIED).all() and (rows[1:] >= 9).all()  # never in or behind a wall
-
-
-def test_a_target_walled_off_from_the_flyable_free_space_is_not_routed_to_across_the_wall():
-    """A sliver between two wall lines, seen through a gap too small for the 0.20 m map, holds FREE cells beside
-    unseen ones: a target 0.4 m from the room's nodes, but across a wall, and no view from the room adds to it."""
-    low = np.full((20, 60), FREE, dtype=np.int8)  # a 4 × 12 m room
-    low[10, :30] = OCCUPIED  # the sliver's walls: rows 10 and 14, the sliver rows 11–13 beyond x = 0 … 6 m
-    low[14, :30] = OCCUPIED
-    low[11:14, :30] = UNKNOWN
-    low[11:14, 29] = OCCUPIED
-    low[15:, :30] = UNKNOWN  # beyond the second wall line: unseen
-    low[11, 10:13] = FREE  # the sliver's cells seen through the gap: a frontier beside its unseen cells
-    low[:, 59] = UNKNOWN  # the room's east end is unseen: the frontier there is 9 m from the vehicle
-    targets = np.zeros(low.shape, dtype=bool)
-    targets[11, 10:13] = True
-    targets[5, 58] = True
-    vehicle = (2.2, 1.0)  # cell (5, 11), 1.2 m north of the sliver's wall
-    grid = GridSpec((0.0, 0.0), 0.2, low.shape)
-    route = nearest_route(low, grid, targets, vehicle, RouteConfig())
-    assert route is not None
-    assert list(route.target_cells) == [np.ravel_multi_index((5, 58), low.shape)]
-    low[10, 11] = FREE  # a gap the map shows: the sliver's cells join the room's
-    route = nearest_route(low, grid, targets, vehicle, RouteConfig())
-    assert route is not None and np.ravel_multi_index((11, 11), low.shape) in route.target_cells
