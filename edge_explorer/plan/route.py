@@ -7,15 +7,19 @@ window ran out of targets, or it moved while the vehicle was in transit), not on
 observed OCCUPIED cell (two cells by default, so a 0.8 m door stays open at this resolution), 8-connected, edges
 weighted as the fine graph weights them; the vehicle's own cell is always a node. A route (:func:`nearest_route`)
 leads to the reachable node nearest along the graph among those within ``goal_radius_m`` of a target cell — Nearest
-Frontier at building scale, the global half of a local-first hierarchy like TARE's. A vehicle whose cell reaches
-no target (among cells the map has not seen FREE, or too near a wall) is routed from the nodes within ``escape_m``
-that its cell reaches without crossing an observed wall (:func:`escape_sources`). The route only leads the way: the
-vehicle flies it through the window's fine graph and follower (:class:`~edge_explorer.plan.window.Transit`), so the
-follower's safety rules hold.
+Frontier at building scale, the global half of a local-first hierarchy like TARE's. When no target is reachable on
+that graph, the search is repeated on the graph of every cell observed FREE (``narrow_clearance_m``): a 0.6–0.8 m
+door can show only two FREE cells across at 0.20 m, which ``min_clearance_m`` closes although the window's fine graph
+flies it, and a vehicle beyond such doors would end its flight with the building unexplored. A vehicle whose cell
+reaches no target (among cells the map has not seen FREE, or too near a wall) is routed from the nodes within
+``escape_m`` that its cell reaches without crossing an observed wall (:func:`escape_sources`). The route only leads
+the way: the vehicle flies it through the window's fine graph and follower
+(:class:`~edge_explorer.plan.window.Transit`), so the follower's safety rules hold.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -40,11 +44,18 @@ class RouteConfig:
     # with a "planner stall" at 41.8 % coverage and 3,120 m² reachable, its vehicle in a 0.6 m unseen slot between
     # two walls whose cell reached 8 nodes (kthwhole_50037765_PLAN3, run 1, session 56)
     escape_m: float = 2.0
+    # when no route keeps min_clearance_m, one may pass cells this near an OCCUPIED cell's centre (0.2 m: every cell
+    # observed FREE; not below min_clearance_m: no second search). A door or slot of 0.6–0.8 m can show only two FREE
+    # cells across on the 0.20 m map, which min_clearance_m closes although the window's fine graph flies it: Nearest
+    # Frontier on a real whole floor ended its flight with a "planner stall" at 44 % coverage and 5,312 m² reachable,
+    # in a corridor whose ways on were such slots (kthwhole_50010535_PLAN1, run 1, with a target rule that was not
+    # adopted, session 60)
+    narrow_clearance_m: float = 0.2
     graph: GraphConfig = GraphConfig(factor=1)
 
     def __post_init__(self) -> None:
-        if self.min_clearance_m < 0 or self.goal_radius_m <= 0 or self.escape_m < 0:
-            raise ValueError("min_clearance_m and escape_m must be ≥ 0 and goal_radius_m > 0")
+        if min(self.min_clearance_m, self.narrow_clearance_m, self.escape_m) < 0 or self.goal_radius_m <= 0:
+            raise ValueError("min_clearance_m, narrow_clearance_m and escape_m must be ≥ 0 and goal_radius_m > 0")
 
 
 @dataclass(frozen=True)
@@ -72,10 +83,22 @@ def route_graph(low: np.ndarray, grid: GridSpec, pose_xy_m: tuple[float, float],
 def nearest_route(
     low: np.ndarray, grid: GridSpec, targets: np.ndarray, pose_xy_m: tuple[float, float], config: RouteConfig
 ) -> Route | None:
-    """The route to the nearest reachable node within ``goal_radius_m`` of a ``targets`` cell (bool on ``grid``),
-    ``None`` when no target is reachable."""
+    """The route to the nearest reachable node within ``goal_radius_m`` of a ``targets`` cell (bool on ``grid``);
+    when no target is reachable on the graph, the same on the graph of ``narrow_clearance_m``; ``None`` when none is
+    reachable on either."""
     if not targets.any():
         return None
+    route = _nearest_route(low, grid, targets, pose_xy_m, config)
+    if route is None and config.narrow_clearance_m < config.min_clearance_m:
+        narrow = dataclasses.replace(config, min_clearance_m=config.narrow_clearance_m)
+        route = _nearest_route(low, grid, targets, pose_xy_m, narrow)
+    return route
+
+
+def _nearest_route(
+    low: np.ndarray, grid: GridSpec, targets: np.ndarray, pose_xy_m: tuple[float, float], config: RouteConfig
+) -> Route | None:
+    """:func:`nearest_route` on the graph of ``config.min_clearance_m``."""
     graph = route_graph(low, grid, pose_xy_m, config)
     start = graph.node_at(*pose_xy_m)
     if start < 0:

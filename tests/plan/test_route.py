@@ -31,3 +31,21 @@ def test_a_vehicle_cut_off_in_an_unseen_slot_is_routed_out_the_way_the_slot_lead
     assert np.ravel_multi_index((10, 50), low.shape) in route.target_cells
     rows, cols = (np.asarray(v) for v in grid.cell_of(route.path_xy_m[:, 0], route.path_xy_m[:, 1]))
     assert (low[rows, cols] != OCCUPIED).all() and (rows[1:] >= 9).all()  # never in or behind a wall
+
+
+def test_when_no_target_is_reachable_on_the_graph_a_route_may_pass_a_slot_two_cells_wide():
+    """Two rooms joined by a slot that shows two FREE cells across on the 0.20 m map (a 0.6–0.8 m door): the graph
+    of 0.4 m clearance closes it, so the route to the far room's frontier passes it on the graph of every FREE cell."""
+    low = np.full((20, 60), FREE, dtype=np.int8)
+    low[:, 28:32] = OCCUPIED  # the wall between the rooms …
+    low[9:11, 28:32] = FREE  # … and the slot through it, rows 9–10
+    low[:, 59] = UNKNOWN  # the far room's east end is unseen
+    targets = np.zeros(low.shape, dtype=bool)
+    targets[:, 58] = True
+    grid = GridSpec((0.0, 0.0), 0.2, low.shape)
+    vehicle = (2.1, 2.1)  # in the west room
+    assert nearest_route(low, grid, targets, vehicle, RouteConfig(narrow_clearance_m=0.4)) is None
+    route = nearest_route(low, grid, targets, vehicle, RouteConfig())
+    assert route is not None and route.path_xy_m[-1, 0] > 11.0
+    rows, cols = (np.asarray(v) for v in grid.cell_of(route.path_xy_m[:, 0], route.path_xy_m[:, 1]))
+    assert (low[rows, cols] == FREE).all() and set(rows[(cols >= 28) & (cols < 32)]) <= {9, 10}  # through the slot
