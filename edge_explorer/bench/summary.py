@@ -14,6 +14,7 @@ of that path length (:func:`paired_differences`); the runs that missed the goal 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 
 CURVE_STEP_M = 0.5  # path-length spacing of the mean curves
+_TITLE_CHARS_PER_INCH = 10  # the figure title wraps at this many characters per inch of width: one line outran a panel
 
 
 # ---- statistics -------------------------------------------------------------------------------------------------
@@ -305,7 +307,7 @@ def plot_curves(panels: dict[str, Any], path: Path, goal: float, title: str) -> 
         ax.legend(fontsize=8, loc="lower right")
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
-    fig.suptitle(title)
+    fig.suptitle(textwrap.fill(title, width=int(_TITLE_CHARS_PER_INCH * fig.get_figwidth())))
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
