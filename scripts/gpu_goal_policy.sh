@@ -12,6 +12,8 @@
 #   DEMO_S=0 DAGGER_S=300 DAGGER_POLICY=models/policy INIT=models/policy/policy.safetensors bash scripts/gpu_goal_policy.sh
 # Needs VAL (made on the host with the same predictor: `train goal-demos --out data/goal_demos_h200/val --split val
 # --count 40 --predictor runs/pred_h200`) and the predictor folder, both carried; it makes data/plans itself.
+# EXTRA_DEMOS (comma-separated shard folders, carried) join every training stage: whole-floor demonstrations, which
+# take minutes a floor and are made on the host beforehand (`train goal-demos --floors --split train --count N`).
 # Wheels the machine lacks (ai-edge-litert for the int8 TFLite predictor, gymnasium) travel in .whl_goal/.
 set -uo pipefail
 BOX_S=${BOX_S:-570}
@@ -30,6 +32,8 @@ WHEELS=${WHEELS:-.whl_goal}
 DAGGER_POLICY=${DAGGER_POLICY:-$RUNS/bc/best.safetensors}
 INIT=${INIT:-$RUNS/bc/best.safetensors}
 OUT=${OUT:-runs/gpu_out}
+EXTRA_DEMOS=${EXTRA_DEMOS:-}
+with_extra() { if [ -n "$EXTRA_DEMOS" ]; then echo "$1,$EXTRA_DEMOS"; else echo "$1"; fi; }
 T0=$(date +%s)
 left() { echo $((BOX_S - ($(date +%s) - T0))); }
 mkdir -p "$OUT" "$RUNS"
@@ -76,7 +80,7 @@ echo "steps/s: $RATE"
 if [ "$DEMO_S" -gt 0 ]; then
 echo "== 3. behaviour cloning ($BC_S s) $(date -u +%T)"
 rm -rf "$RUNS/bc"
-$EE train goal-bc --train-demos "$DEMOS/train" --val-demos "$VAL" --steps "$(steps_for "$BC_S")" \
+$EE train goal-bc --train-demos "$(with_extra "$DEMOS/train")" --val-demos "$VAL" --steps "$(steps_for "$BC_S")" \
     --batch-size "$BATCH" --device "$DEVICE" --max-minutes "$(python3 -c "print($BC_S / 60)")" --out "$RUNS/bc"
 fi
 
@@ -89,7 +93,7 @@ if [ "$DAGGER_S" -gt 0 ] && [ -e "$DAGGER_POLICY" ] && [ -f "$INIT" ] && [ "$(le
     echo "== 5. fine-tune on expert + DAgger ($FT_S s) $(date -u +%T)"
     rm -rf "$RUNS/dagger1"
     TRAIN=$DEMOS/dagger1; [ -d "$DEMOS/train" ] && TRAIN=$DEMOS/train,$TRAIN
-    $EE train goal-bc --train-demos "$TRAIN" --val-demos "$VAL" \
+    $EE train goal-bc --train-demos "$(with_extra "$TRAIN")" --val-demos "$VAL" \
         --init "$INIT" --lr 3e-4 --steps "$(steps_for "$FT_S")" --batch-size "$BATCH" \
         --device "$DEVICE" --max-minutes "$(python3 -c "print($FT_S / 60)")" --out "$RUNS/dagger1"
 fi

@@ -20,6 +20,9 @@ DESCRIPTION = (
 )
 
 
+_DEMO_FLOOR_STEPS = 40_000  # the bench's step cap on whole floors (docs/bench/README.md)
+
+
 def _probability(text: str) -> float:
     try:
         value = float(text)
@@ -104,10 +107,23 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Expert-labelled goal decisions on the generated plans, for the goal policy (resumable shards).",
     )
     demos.add_argument("--plans", default="data/plans", help="plan dataset (default data/plans)")
+    demos.add_argument(
+        "--floors",
+        action="store_true",
+        help="fly the generated whole floors of the split (floor-SPLIT-K, 40-200 m; one floor per shard) instead "
+        "of the plan dataset",
+    )
     demos.add_argument("--out", type=Path, required=True, help="shard folder")
     demos.add_argument("--split", choices=("train", "val"), default="train")
     demos.add_argument("--first", type=int, default=0, help="first plan index of the split (default 0)")
     demos.add_argument("--count", type=positive_int, required=True, help="plans to fly")
+    demos.add_argument(
+        "--max-steps",
+        type=positive_int,
+        default=None,
+        help=f"step cap of a flight (default 1500, with --floors {_DEMO_FLOOR_STEPS:,}: a whole floor takes up to "
+        "17,000 steps)",
+    )
     demos.add_argument("--predictor", default="models/predictor", help="predictor reference ('' = none: phase 1)")
     demos.add_argument(
         "--policy",
@@ -281,8 +297,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _goal_demos(args: argparse.Namespace) -> int:
-    from edge_explorer.learn.goal_demos import generate_demos
+    from edge_explorer.learn.goal_demos import DemoConfig, generate_demos
 
+    config = (
+        DemoConfig()
+        if args.max_steps is None and not args.floors
+        else DemoConfig(max_steps=args.max_steps or _DEMO_FLOOR_STEPS)
+    )
     decisions = generate_demos(
         args.plans,
         args.out,
@@ -290,7 +311,10 @@ def _goal_demos(args: argparse.Namespace) -> int:
         (args.first, args.first + args.count),
         args.predictor or None,
         args.policy,
+        plans_per_shard=1 if args.floors else 10,
         workers=args.workers,
+        config=config,
+        floors=args.floors,
     )
     print(f"{decisions} labelled decisions written to {args.out}")
     return 0

@@ -7,8 +7,12 @@ data); with one it flies the policy's goals while still recording the expert's l
 which shows the policy the states its own mistakes lead to.
 
 Episodes run in the training simulator with the predictor on (phase 2 of the paper: the fused map is what the
-policy sees), from the plans of the generated dataset (``data/plans``), until coverage and correct coverage reach
-95 % or the step cap. Shards are ``.npz`` files (plain arrays, no pickles), one per block of plans, written in
+policy sees), from the plans of the generated dataset (``data/plans``) or the generated whole floors
+(:mod:`edge_explorer.world.floors`, ``floors=True``), until coverage and correct coverage reach 95 % or the step cap.
+They fly inside the planning hierarchy (:class:`~edge_explorer.plan.window.WindowedPlanner`), as the bench and the
+daemon do: on a plan that fits its window nothing changes, and on a whole floor the decisions are those of the
+learned planner's window, with its whole-floor targets and settings (issue #55: the models had never seen a
+corridor longer than 21 m). Shards are ``.npz`` files (plain arrays, no pickles), one per block of plans, written in
 parallel and resumably (a ``.json`` marker is written last): ``high``/``thres`` int8 (N, 237, 237),
 ``last_action`` int8 (N,), ``mask`` packed bits (N, 436), ``label`` int32 (N,).
 """
@@ -24,20 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_explorer.errors import EdgeExplorerError
+from edge_explorer.errors import EdgeExplorerError, PlanError
 from edge_explorer.mapping.ego import OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
 from edge_explorer.plan.goal_grid import GOAL_GRID_CELLS
-from edge_explorer.plan.goal_policy import (
-    GoalPolicy,
-    best_cell_worth_a_look,
-    expert_label,
-    goal_at_cell,
-    goal_decision,
-    weighted_scores,
-)
+from edge_explorer.plan.goal_policy import GoalPolicy, GoalPolicyPlanner, expert_label, goal_decision
 from edge_explorer.plan.predictive import PredictiveFrontier
+from edge_explorer.plan.window import WindowedPlanner
 from edge_explorer.predict.predictor import thresholds_of
 from edge_explorer.sim.env import EnvConfig, ExplorationEnv, Predictor
 from edge_explorer.sim.episode import Episode
@@ -49,16 +47,20 @@ _CELLS = GOAL_GRID_CELLS * GOAL_GRID_CELLS
 Record = tuple[np.ndarray, np.ndarray, int, np.ndarray, int]  # high, thres, last motion, flat valid mask, label
 
 
-class LabellingPlanner(PredictiveFrontier):
-    """The expert's loop; the expert's or a policy's goals; every decision recorded with the expert's label."""
+class LabellingPlanner(GoalPolicyPlanner):
+    """The expert's loop; the expert's or a policy's goals; every decision recorded with the expert's label.
+
+    It is the learned planner (:class:`~edge_explorer.plan.goal_policy.GoalPolicyPlanner`) that also asks the expert
+    at every decision and flies the expert's goal when it has no ``policy``: so on a whole floor its targets, goal
+    options and settings are the learned planner's there (:meth:`on_whole_floor`), and each label is the expert's
+    choice among the options the policy is shown in flight."""
 
     def __init__(self, policy: GoalPolicy | None = None, table: ActionTable | None = None) -> None:
-        super().__init__(table=table)
-        self.policy = policy
+        super().__init__(policy, table=table)  # type: ignore[arg-type]  # without a policy the expert flies
         self.records: list[Record] = []
 
     def select_goal(self, view: View, pose: Pose) -> Goal | None:
-        expert = super().select_goal(view, pose)
+        expert = PredictiveFrontier.select_goal(self, view, pose)
         fused = self.fused if self.fused is not None else view.maps.low
         decision = goal_decision(view, pose, fused, self.last_action, self.config.goal_radius_m)
         label = None if expert is None else expert_label(expert, pose, view, decision.options)
@@ -67,10 +69,7 @@ class LabellingPlanner(PredictiveFrontier):
             self.records.append((o["high"], o["thres"], self.last_action, decision.options.flat_mask(), label))
         if self.policy is None or not decision.options.mask.any():
             return expert
-        scores = weighted_scores(
-            self.policy(decision.observation), decision.options, self.predictive.policy_cost_weight_per_m
-        )
-        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.predictive))
+        return self.policy_goal(view, decision, self.policy(decision.observation), fused)
 
 
 @dataclass(frozen=True)
@@ -85,14 +84,16 @@ class DemoConfig:
 def fly_demo(
     raster: PlanRaster, predictor: Predictor | None, seed: int, config: DemoConfig, policy: GoalPolicy | None = None
 ) -> list[Record]:
-    """One labelled episode on ``raster`` from a random start (see the module docstring)."""
+    """One labelled episode on ``raster`` from a random start, inside the planning hierarchy (see the module
+    docstring)."""
     env_config = EnvConfig(coverage_goal=1.0, max_steps=config.max_steps, thresholds=thresholds_of(predictor))
     env = ExplorationEnv([raster], env_config, predictor=predictor)
-    planner = LabellingPlanner(policy, env.table)
+    labelling = LabellingPlanner(policy, env.table)
+    planner = WindowedPlanner(labelling)
     planner.reset()
     _, info = env.reset(seed=seed)
     Episode(env, planner, info, coverage_goal=config.coverage_goal, max_steps=config.max_steps).run()
-    return planner.records
+    return labelling.records
 
 
 def write_demos(path: Path, records: Sequence[Record]) -> None:
@@ -156,6 +157,7 @@ class DemoJob:
     predictor: str | None
     policy: str | None
     config: DemoConfig
+    floors: bool = False  # the generated whole floors of ``split`` instead of the plans in ``plans``
 
     @property
     def marker(self) -> Path:
@@ -176,6 +178,22 @@ def split_rasters(
     return [plan_to_raster(p) for p in islice(iter_shard_plans(shards), first + offset, stop, every)]
 
 
+def floor_rasters(split: str, first: int, stop: int) -> list[PlanRaster]:
+    """Whole floors [first, stop) of a floor split (``floor-<split>-<k>``), cut to their flight space as the bench
+    flies them; a seed the generator gives up on is skipped, as :func:`~edge_explorer.world.floors.
+    regenerate_floor_split` skips it."""
+    from edge_explorer.world.catalog import load_buildings
+    from edge_explorer.world.floors import floor_name
+
+    rasters = []
+    for k in range(first, stop):
+        try:
+            rasters += load_buildings(floor_name(split, k))
+        except PlanError:
+            continue
+    return rasters
+
+
 def _run_job(job: DemoJob) -> dict:
     import cv2
 
@@ -192,7 +210,12 @@ def _run_job(job: DemoJob) -> dict:
             torch.set_num_threads(1)  # one process per core: torch's own threads would oversubscribe them
         policy = load_policy(job.policy)  # torch weights, or an exported folder (int8 TFLite: faster rollouts)
     records = []
-    for k, raster in enumerate(split_rasters(job.plans, job.split, job.first, job.stop)):
+    rasters = (
+        floor_rasters(job.split, job.first, job.stop)
+        if job.floors
+        else split_rasters(job.plans, job.split, job.first, job.stop)
+    )
+    for k, raster in enumerate(rasters):
         seed = int(np.random.SeedSequence([job.config.seed, job.first + k]).generate_state(1)[0])
         records += fly_demo(raster, predictor, seed, job.config, policy)
     job.out.parent.mkdir(parents=True, exist_ok=True)
@@ -213,9 +236,10 @@ def generate_demos(
     plans_per_shard: int = 10,
     workers: int = 1,
     config: DemoConfig = DemoConfig(),
+    floors: bool = False,
 ) -> int:
-    """Write demonstration shards for plans ``plan_range`` of ``split``, resumably; returns the decisions written
-    this call (shards already finished are skipped)."""
+    """Write demonstration shards for plans ``plan_range`` of ``split`` (of the whole floors with ``floors``),
+    resumably; returns the decisions written this call (shards already finished are skipped)."""
     from tqdm import tqdm
 
     first, stop = plan_range
@@ -229,6 +253,7 @@ def generate_demos(
             predictor,
             policy,
             config,
+            floors,
         )
         for a in range(first, stop, plans_per_shard)
     ]

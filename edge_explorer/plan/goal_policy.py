@@ -360,8 +360,13 @@ class GoalPolicyPlanner(PredictiveFrontier):
         decision = decision_with(view, pose, observation, self.config.goal_radius_m)
         if not decision.options.mask.any():
             return super().select_goal(view, pose)  # the expert's fallbacks: observed frontier, then done
+        scores = pending.result() if pending is not None else self.policy(decision.observation)
+        return self.policy_goal(view, decision, scores, fused)
+
+    def policy_goal(self, view: View, decision: GoalDecision, scores: np.ndarray, fused_low: np.ndarray) -> Goal:
+        """The goal the planner flies for the policy's ``scores`` of ``decision`` (whose options are not empty):
+        among the near goals on a whole floor, ranked by score, path cost and view gain, the best worth a look."""
         near = nearest_goals(decision.options, self.settings.policy_max_extra_m)
         decision = dataclasses.replace(decision, options=near)
-        raw = pending.result() if pending is not None else self.policy(decision.observation)
-        scores = weighted_scores(raw, decision.options, self.settings.policy_cost_weight_per_m)
-        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, scores, fused, self.settings))
+        ranked = weighted_scores(scores, decision.options, self.settings.policy_cost_weight_per_m)
+        return goal_at_cell(view, decision, best_cell_worth_a_look(view, decision, ranked, fused_low, self.settings))
