@@ -139,13 +139,13 @@ class PredictiveConfig:
     # ×0.95 / ×1.11 (session 56). 0 m (the nearest valid goal, Nearest Frontier's choice in the window) on the 16 val
     # floors named at whole_floor_cost_weight_per_m: ×0.98 / ×1.05 / ×1.05 against today's ×0.93 / ×0.90 / ×0.97,
     # correct area at 200 m 1.23 → 1.08 ×, 1 collision (session 58). Those val floors are smaller than the test split
-    # (median N_M 2,059 against 4,822 m²), and the planner's lead shrinks with size. On 16 val floors sized like the
+    # (median N_M 2,059 against 4,658 m²), and the planner's lead shrinks with size. On 16 val floors sized like the
     # test split (floor-val 40–55, at most 40,000 steps), 5 m against 15 m: ×1.08 / ×1.00 / ×1.08 against ×1.15 /
     # ×1.05 / ×1.17 of Nearest Frontier's paths, area within 5 %, 0 against 1 collision; 0 m ×1.03 / ×1.02 / ×1.05,
     # area at 200 m 1.05 ×, 5 collisions. On the 32 test floors 5 m flew ×1.09 / ×1.07 / ×1.11 against ×1.17 /
     # ×1.11 / ×1.17 over the floors it finished, but 2 flights ended in a planner stall (73.9 % and 87.3 % coverage,
     # 1,601 and 736 m² reachable: the hierarchy's drop rules had dropped every frontier cell left). With the drops
-    # forgiven before a flight ends (WindowConfig.forgive_drops) both finish: ×1.11 to 95 % coverage over 31 floors.
+    # forgiven before a flight ends (WindowConfig.forgive_drops) both finish: ×1.10 against ×1.15 to 95 % coverage.
     # 15 m stays until the real floors and the daemon's flights are flown with 5 m (session 61).
     # Tried and not kept (session 54): on a whole floor, the learned planner targeting the observed frontier instead
     # of the fused one (a room the prediction filled is then not left behind). Paths ÷ Nearest Frontier's to 95 %
