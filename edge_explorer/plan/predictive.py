@@ -129,24 +129,14 @@ class PredictiveConfig:
     whole_floor_gain_weight: float = 2.0
     # the learned planner only: it chooses among the valid goals whose path costs at most policy_max_extra_m more than
     # the nearest one's (goal_policy.nearest_goals). Off (inf) in the window: the paper's envelope is where the policy
-    # was trained. On a whole floor 15 m: at the window's weights the planner crossed its window for a large view and
-    # left the near rooms for a second pass along the corridor. 8 other generated val floors, 53-100 m long
-    # (floor-val 1, 4, 8, 14, 19, 24, 32, 38; 1 run, seed 0), path ÷ Nearest Frontier's to 95 % coverage / 90 % / 95 %
-    # correct coverage: off ×1.25 / ×1.27 / ×1.27, 15 m ×1.13 / ×1.10 / ×1.19, 5 m ×1.16 / ×1.12 / ×1.16 (session
-    # 52; the floor-to-floor spread is ±0.2, so 15 and 5 cannot be told apart; 15 m kept the area mapped at 100 m).
-    # On the 15 test floors it made no difference: ×1.19 / ×1.19 / ×1.20 off, ×1.20 / ×1.20 / ×1.19 at 15 m.
-    # With observed targets (below), 5 m against 15 m on the same val floors: ×1.12 / ×1.04 / ×1.12 against ×1.10 /
-    # ×0.95 / ×1.11 (session 56). 0 m (the nearest valid goal, Nearest Frontier's choice in the window) on the 16 val
-    # floors named at whole_floor_cost_weight_per_m: ×0.98 / ×1.05 / ×1.05 against today's ×0.93 / ×0.90 / ×0.97,
-    # correct area at 200 m 1.23 → 1.08 ×, 1 collision (session 58). Those val floors are smaller than the test split
-    # (median N_M 2,059 against 4,658 m²), and the planner's lead shrinks with size. On 16 val floors sized like the
-    # test split (floor-val 40–55, at most 40,000 steps), 5 m against 15 m: ×1.08 / ×1.00 / ×1.08 against ×1.15 /
-    # ×1.05 / ×1.17 of Nearest Frontier's paths, area within 5 %, 0 against 1 collision; 0 m ×1.03 / ×1.02 / ×1.05,
-    # area at 200 m 1.05 ×, 5 collisions. On the 32 test floors 5 m flew ×1.09 / ×1.07 / ×1.11 against ×1.17 /
-    # ×1.11 / ×1.17 over the floors it finished, but 2 flights ended in a planner stall (73.9 % and 87.3 % coverage,
-    # 1,601 and 736 m² reachable: the hierarchy's drop rules had dropped every frontier cell left). With the drops
-    # forgiven before a flight ends (WindowConfig.forgive_drops) both finish: ×1.10 against ×1.15 to 95 % coverage.
-    # 15 m stays until the real floors and the daemon's flights are flown with 5 m (session 61).
+    # was trained. On a whole floor 5 m: at the window's weights the planner crossed its window for a large view and
+    # left the near rooms for a second pass along the corridor (off: ×1.25 / ×1.27 / ×1.27 of Nearest Frontier's
+    # path to 95 % coverage / 90 % / 95 % correct coverage on 8 val floors, session 52). On 16 val floors sized like
+    # the test split (floor-val 40–55, 1 run, seed 0, at most 40,000 steps), paths ÷ Nearest Frontier's: 15 m ×1.15 /
+    # ×1.05 / ×1.17, 5 m ×1.08 / ×1.00 / ×1.08 (correct area at 100–800 m within 5 % of 15 m's, 0 collisions against
+    # 1), 0 m (the nearest valid goal) ×1.03 / ×1.02 / ×1.05 but correct area at 200 m 1.05 × against 1.13 × and 5
+    # collisions (session 61). The test split, the real whole floors and the daemon's whole-floor flights with 5 m:
+    # docs/bench and docs/runtime (session 62).
     # Tried and not kept (session 54): on a whole floor, the learned planner targeting the observed frontier instead
     # of the fused one (a room the prediction filled is then not left behind). Paths ÷ Nearest Frontier's to 95 %
     # coverage / 90 % / 95 % correct coverage: 8 val floors (1, 4, 8, 14, 19, 24, 32, 38) ×1.24 / ×1.21 / ×1.23 →
@@ -157,7 +147,7 @@ class PredictiveConfig:
     # collision. Worth another try once the follower keeps out of such slots. The view gain counted on the observed
     # map as well was worse on the val floors (×1.21 / ×1.08 / ×1.21).
     policy_max_extra_m: float = math.inf
-    whole_floor_max_extra_m: float = 15.0
+    whole_floor_max_extra_m: float = 5.0
     # the learned planner only: its targets (goal options, and what the hierarchy's global layer routes to) are the
     # observed frontier, not the fused one. Off in the window: skipping what the prediction already shows is how the
     # planner halves the path in the paper's envelope. On a whole floor on: a room the prediction filled was left
