@@ -137,7 +137,7 @@ class PredictiveConfig:
     # 1), 0 m (the nearest valid goal) ×1.03 / ×1.02 / ×1.05 but correct area at 200 m 1.05 × against 1.13 × and 5
     # collisions (session 61). Re-flown with 5 m (session 62; docs/bench, docs/runtime): the 32 test floors ×1.15 →
     # ×1.10 to 95 % coverage; the 7 real whole floors ×1.16 → ×1.12, but correct area at 800 m 1.06 → 0.99 × Nearest
-    # Frontier's; the daemon's three 15-minute flights of a 271 m real floor 1.19 → 1.32 × its correct area.
+    # Frontier's; the daemon's three 15-minute flights of a 271 m real floor 804 → 893 m² of correct area (1.29 × its).
     # Tried and not kept (session 54): on a whole floor, the learned planner targeting the observed frontier instead
     # of the fused one (a room the prediction filled is then not left behind). Paths ÷ Nearest Frontier's to 95 %
     # coverage / 90 % / 95 % correct coverage: 8 val floors (1, 4, 8, 14, 19, 24, 32, 38) ×1.24 / ×1.21 / ×1.23 →
