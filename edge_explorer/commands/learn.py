@@ -7,6 +7,7 @@ Handlers import torch lazily, so ``edge-explorer --help`` works without the ``tr
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 
@@ -59,13 +60,26 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Explore plans of the generated dataset and write predictor sample shards (.npz).",
     )
     data.add_argument("--plans", type=Path, default=Path("data/plans"), help="plan dataset (default data/plans)")
+    data.add_argument(
+        "--floors",
+        action="store_true",
+        help="explore the generated whole floors of each split (floor-SPLIT-K, 40-200 m) instead of the plan "
+        "dataset: --train-plans / --val-plans count floors, moments are drawn over each flight's 6,000 steps",
+    )
     data.add_argument("--out", type=Path, required=True, help="output folder (train/ and val/ shards)")
     data.add_argument(
         "--train-plans", type=_non_negative_int, default=4000, help="train plans to explore (4000; 0 = none)"
     )
     data.add_argument("--val-plans", type=_non_negative_int, default=300, help="val plans to explore (300; 0 = none)")
-    data.add_argument("--samples-per-plan", type=positive_int, default=10, help="coverage levels per plan (10)")
-    data.add_argument("--plans-per-shard", type=positive_int, default=50)
+    data.add_argument(
+        "--samples-per-plan",
+        type=positive_int,
+        default=None,
+        help="moments recorded per plan (default 10 coverage levels; with --floors 40 steps)",
+    )
+    data.add_argument(
+        "--plans-per-shard", type=positive_int, default=None, help="plans per shard (default 50; with --floors 1)"
+    )
     data.add_argument("--seed", type=int, default=0)
     data.add_argument(
         "--noise-free-fraction",
@@ -361,11 +375,15 @@ def _non_negative_int(text: str) -> int:
 
 def _predictor_data(args: argparse.Namespace) -> int:
     from edge_explorer.errors import EdgeExplorerError
-    from edge_explorer.learn.predictor_data import SampleConfig, generate_predictor_data
+    from edge_explorer.learn.predictor_data import FLOOR_SAMPLES, SampleConfig, generate_predictor_data
 
-    config = SampleConfig(
-        samples_per_plan=args.samples_per_plan, seed=args.seed, noise_free_fraction=args.noise_free_fraction
+    config = dataclasses.replace(
+        FLOOR_SAMPLES if args.floors else SampleConfig(samples_per_plan=10),
+        seed=args.seed,
+        noise_free_fraction=args.noise_free_fraction,
     )
+    if args.samples_per_plan is not None:
+        config = dataclasses.replace(config, samples_per_plan=args.samples_per_plan)
     counts = {split: n for split, n in (("train", args.train_plans), ("val", args.val_plans)) if n > 0}
     if not counts:
         raise EdgeExplorerError("--train-plans and --val-plans are both 0: nothing to explore")
@@ -374,9 +392,10 @@ def _predictor_data(args: argparse.Namespace) -> int:
         args.out,
         counts,
         config,
-        args.plans_per_shard,
+        args.plans_per_shard or (1 if args.floors else 50),
         args.workers,
         args.ray,
+        floors=args.floors,
     )
     print(
         f"{report.samples} samples from {report.plans} plans in {report.seconds:.0f} s "

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_explorer.errors import EdgeExplorerError, PlanError
+from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import OBSERVATION_WINDOW_CELLS
 from edge_explorer.plan.follow import Pose
 from edge_explorer.plan.frontier import Goal, View
@@ -178,22 +178,6 @@ def split_rasters(
     return [plan_to_raster(p) for p in islice(iter_shard_plans(shards), first + offset, stop, every)]
 
 
-def floor_rasters(split: str, first: int, stop: int) -> list[PlanRaster]:
-    """Whole floors [first, stop) of a floor split (``floor-<split>-<k>``), cut to their flight space as the bench
-    flies them; a seed the generator gives up on is skipped, as :func:`~edge_explorer.world.floors.
-    regenerate_floor_split` skips it."""
-    from edge_explorer.world.catalog import load_buildings
-    from edge_explorer.world.floors import floor_name
-
-    rasters = []
-    for k in range(first, stop):
-        try:
-            rasters += load_buildings(floor_name(split, k))
-        except PlanError:
-            continue
-    return rasters
-
-
 def _run_job(job: DemoJob) -> dict:
     import cv2
 
@@ -209,6 +193,8 @@ def _run_job(job: DemoJob) -> dict:
 
             torch.set_num_threads(1)  # one process per core: torch's own threads would oversubscribe them
         policy = load_policy(job.policy)  # torch weights, or an exported folder (int8 TFLite: faster rollouts)
+    from edge_explorer.world.catalog import floor_rasters
+
     records = []
     rasters = (
         floor_rasters(job.split, job.first, job.stop)

@@ -120,6 +120,21 @@ def load_building(ref: str) -> PlanRaster:
     return rasters[0]
 
 
+def floor_rasters(split: str, first: int, stop: int) -> list[PlanRaster]:
+    """Whole floors [first, stop) of a floor split (``floor-<split>-<k>``), cut to their flight space as the bench
+    flies them: the training data of the goal policy and the predictor on whole floors. A seed the generator gives up
+    on is skipped, as :func:`~edge_explorer.world.floors.regenerate_floor_split` skips it."""
+    from edge_explorer.world.floors import floor_name
+
+    rasters = []
+    for k in range(first, stop):
+        try:
+            rasters += load_buildings(floor_name(split, k))
+        except PlanError:
+            continue
+    return rasters
+
+
 def sheet_rasters(ref: str) -> tuple[list[PlanRaster], list[str]]:
     """Rasters and titles for ``plans sheet --plans REF`` (a comma-separated list): floors at 0.10 m, drawn without
     cutting them to the flight space (minutes per large floor); any other reference through the catalog."""
