@@ -26,11 +26,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
-from scipy.spatial import cKDTree
 
-from edge_explorer.plan.frontier import frontier_clusters
 from edge_explorer.plan.graph import GraphConfig, PlanningGraph, Traversable
-from edge_explorer.plan.tour import MAX_TOUR_STOPS, open_tour
 from edge_explorer.world.flight_space import centre_clearance_m
 from edge_explorer.world.grid import FREE, OCCUPIED, GridSpec
 
@@ -54,18 +51,11 @@ class RouteConfig:
     # in a corridor whose ways on were such slots (kthwhole_50010535_PLAN1, run 1, with a target rule that was not
     # adopted, session 60)
     narrow_clearance_m: float = 0.2
-    # 1: the route leads to the nearest target (Nearest Frontier's rule). More: the targets are grouped into clusters
-    # of at most ``tour_cluster_m`` radius and the route leads to the first stop of the shortest open tour from the
-    # vehicle through the ``tour_stops`` clusters nearest along the graph (:func:`tour_first`, FUEL's global tour)
-    tour_stops: int = 1
-    tour_cluster_m: float = 4.0
     graph: GraphConfig = GraphConfig(factor=1)
 
     def __post_init__(self) -> None:
         if min(self.min_clearance_m, self.narrow_clearance_m, self.escape_m) < 0 or self.goal_radius_m <= 0:
             raise ValueError("min_clearance_m, narrow_clearance_m and escape_m must be ≥ 0 and goal_radius_m > 0")
-        if not 1 <= self.tour_stops <= MAX_TOUR_STOPS or self.tour_cluster_m <= 0:
-            raise ValueError(f"tour_stops must be in [1, {MAX_TOUR_STOPS}] and tour_cluster_m positive")
 
 
 @dataclass(frozen=True)
@@ -133,8 +123,6 @@ def _nearest_route(
     if len(reachable) == 0:
         return None
     end = int(reachable[np.argmin(cost[reachable])])
-    if config.tour_stops > 1:
-        end = tour_first(graph, cost, reachable, targets, config)
     path = graph.path_xy_m(predecessors, end)
     if graph.node_at(*path[0]) != start:  # an escape: the route starts at the vehicle's cell all the same
         path = np.vstack([graph.node_xy_m(np.array([start])), path])
@@ -142,40 +130,6 @@ def _nearest_route(
     x, y = grid.center_of(rows, cols)
     close = np.hypot(x - path[-1, 0], y - path[-1, 1]) <= config.goal_radius_m + grid.resolution_m
     return Route(path, np.ravel_multi_index((rows[close], cols[close]), targets.shape))
-
-
-def tour_first(
-    graph: PlanningGraph, cost: np.ndarray, reachable: np.ndarray, targets: np.ndarray, config: RouteConfig
-) -> int:
-    """The node a route should end at: the entry of the first cluster of the shortest open tour from the vehicle
-    through the ``config.tour_stops`` target clusters nearest along ``graph``.
-
-    ``targets`` (bool on the graph's 0.20 m grid) are split into clusters of at most ``tour_cluster_m`` radius
-    (:func:`~edge_explorer.plan.frontier.frontier_clusters`); each ``reachable`` node (candidates within
-    ``goal_radius_m`` of a target, with the vehicle's search ``cost``) belongs to the cluster of its nearest target
-    cell, and a cluster's entry is its node nearest the vehicle. The tour's legs are path costs on ``graph`` from each
-    entry, searched no further than twice the farthest entry's cost (on an undirected graph no shortest leg between
-    two entries is longer: it is at most the way back to the vehicle and out again). With fewer than three clusters
-    the nearest entry is the optimum's first stop."""
-    grid = graph.grid
-    target_cells = np.flatnonzero(targets)
-    label = np.zeros(targets.size, dtype=np.int64)
-    for k, cells in enumerate(frontier_clusters(targets, grid, config.tour_cluster_m)):
-        label[cells] = k
-    tree = cKDTree(np.column_stack(np.divmod(target_cells, grid.shape[1])))
-    _, nearest = tree.query(np.column_stack(np.divmod(graph.cells[reachable], grid.shape[1])))
-    node_label = label[target_cells[nearest]]
-    by_cluster = np.lexsort((cost[reachable], node_label))  # per cluster, nearest node first
-    _, first = np.unique(node_label[by_cluster], return_index=True)
-    entries = reachable[by_cluster[first]]
-    entries = entries[np.argsort(cost[entries], kind="stable")][: config.tour_stops]
-    if len(entries) < 3:
-        return int(entries[0])
-    legs, _ = graph.search(entries, limit=2.0 * float(cost[entries].max()) + grid.resolution_m)
-    matrix = np.zeros((len(entries) + 1,) * 2)
-    matrix[0, 1:] = cost[entries]
-    matrix[1:, 1:] = legs[:, entries]
-    return int(entries[open_tour(matrix)[1] - 1])
 
 
 def via_index(path_xy_m: np.ndarray, inside: tuple[float, float, float, float]) -> int:

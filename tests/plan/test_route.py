@@ -49,20 +49,3 @@ def test_when_no_target_is_reachable_on_the_graph_a_route_may_pass_a_slot_two_ce
     assert route is not None and route.path_xy_m[-1, 0] > 11.0
     rows, cols = (np.asarray(v) for v in grid.cell_of(route.path_xy_m[:, 0], route.path_xy_m[:, 1]))
     assert (low[rows, cols] == FREE).all() and set(rows[(cols >= 28) & (cols < 32)]) <= {9, 10}  # through the slot
-
-
-def test_the_tour_goes_first_to_the_lone_target_that_nearest_first_would_leave_for_last():
-    """A 40 m corridor: one target 6 m west of the vehicle, three 5 m apart from 5 m east. Nearest first flies east
-    and comes back (5 + 5 + 5 + 21 = 36 m); the tour sweeps west first (6 + 11 + 5 + 5 = 27 m)."""
-    low = np.full((10, 200), FREE, dtype=np.int8)
-    low[[0, -1], :] = OCCUPIED
-    grid = GridSpec((0.0, 0.0), 0.2, low.shape)
-    targets = np.zeros(low.shape, dtype=bool)
-    for x_m in (4.0, 15.0, 20.0, 25.0):
-        targets[4:6, int(x_m / 0.2)] = True
-    vehicle = (10.1, 1.0)
-    nearest = nearest_route(low, grid, targets, vehicle, RouteConfig())
-    toured = nearest_route(low, grid, targets, vehicle, RouteConfig(tour_stops=4))
-    assert nearest is not None and toured is not None
-    assert nearest.path_xy_m[-1, 0] > 14.0 and toured.path_xy_m[-1, 0] < 5.0
-    assert np.ravel_multi_index((4, 20), low.shape) in toured.target_cells
