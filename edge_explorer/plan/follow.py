@@ -24,9 +24,12 @@ real floor three times in one flight; with the ladder twice, and the test split'
 Hovering is the most robust single step (its noise is a third of a forward step's), but it stays where it is: near a
 wall, where no motion keeps the full margin, a follower ranked by one step's robustness hovers step after step while
 its drift random-walks into the wall (a learned flight on a real whole floor hovered 20 steps at 0.30 m from a door
-jamb, each goal and back-off goal in turn, until it touched it). So inside the caution distance a mean-safe motion whose
-end and braking drift both lie farther from every observed obstacle than the vehicle is now counts as robust as
-hovering: stepping away from the wall is never ranked below waiting beside it.
+jamb, each goal and back-off goal in turn, until it touched it). So when the vehicle hovered the step before and is
+inside the caution distance, a mean-safe motion whose end and braking drift both lie farther from every observed
+obstacle than the vehicle is now counts as robust as hovering: stepping away from the wall is not ranked below
+waiting beside it once more. (Applied at every step inside the caution distance, not only after a hover, it also
+swapped turns in place for steps away on flights that were not hovering, and one of them brushed the next wall two
+steps later: Nearest Frontier on building C, run 2.)
 
 Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
 observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at
@@ -346,7 +349,7 @@ def choose_action(
     first = {a: None if a in blocked_actions else safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
     robust_first = {a: robustness(a, end) for a, end in first.items()}
     here_m = free.clearance_at(pose[0], pose[1])
-    if here_m < config.caution_distance_m:  # near a wall: a step away from it ranks with hovering (module docstring)
+    if previous_action == Action.HOVER and here_m < config.caution_distance_m:  # hovering by a wall (module docstring)
         for a, end in first.items():
             if a == Action.HOVER or end is None or robust_first[a] < 0:
                 continue
