@@ -24,12 +24,14 @@ real floor three times in one flight; with the ladder twice, and the test split'
 Hovering is the most robust single step (its noise is a third of a forward step's), but it stays where it is: near a
 wall, where no motion keeps the full margin, a follower ranked by one step's robustness hovers step after step while
 its drift random-walks into the wall (a learned flight on a real whole floor hovered 20 steps at 0.30 m from a door
-jamb, each goal and back-off goal in turn, until it touched it). So when the vehicle hovered the step before and is
-inside the caution distance, a mean-safe motion whose end and braking drift both lie farther from every observed
-obstacle than the vehicle is now counts as robust as hovering: stepping away from the wall is not ranked below
-waiting beside it once more. (Applied at every step inside the caution distance, not only after a hover, it also
-swapped turns in place for steps away on flights that were not hovering, and one of them brushed the next wall two
-steps later: Nearest Frontier on building C, run 2.)
+jamb, each goal and back-off goal in turn, until it touched it). So a caller whose vehicle has been hovering there
+passes ``escape``: inside the caution distance a mean-safe motion whose end and braking drift both lie farther from
+every observed obstacle than the vehicle is now then counts as robust as hovering, and stepping away from the wall is
+not ranked below waiting beside it once more. The planner loop does so after two hovers in a row
+(:class:`~edge_explorer.plan.frontier.GoalPlanner`). Applied at every step inside the caution distance it changed
+flights that were not hovering (Nearest Frontier on building C brushed the next wall two steps after such a step), and
+after a single hover it stepped a learned flight out from 0.255 m, where a forward step's noise is larger than the
+margin (test-00053).
 
 Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
 observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at
@@ -296,6 +298,7 @@ def choose_action(
     config: FollowConfig = FollowConfig(),
     final_yaw_rad: float | None = None,
     blocked_actions: frozenset[int] = frozenset(),
+    escape: bool = False,
 ) -> int | None:
     """The action that best advances along ``path_xy_m`` ((N, 2) metres, from near the vehicle to the goal).
 
@@ -304,6 +307,8 @@ def choose_action(
     two poses, preferring sequences whose first step is robust to motion noise. Hover
     when no sequence is safe (a state the follower's own choices never lead to). ``blocked_actions`` are first
     actions known to be blocked from this very pose (a collision the map does not explain: the caller's memory).
+    ``escape``: the vehicle has been hovering here; near a wall a step away from it ranks with hovering (module
+    docstring).
     """
     path = np.asarray(path_xy_m, dtype=np.float64).reshape(-1, 2)
     if arrived(pose, path, final_yaw_rad, config):
@@ -348,8 +353,8 @@ def choose_action(
 
     first = {a: None if a in blocked_actions else safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
     robust_first = {a: robustness(a, end) for a, end in first.items()}
-    here_m = free.clearance_at(pose[0], pose[1])
-    if previous_action == Action.HOVER and here_m < config.caution_distance_m:  # hovering by a wall (module docstring)
+    here_m = free.clearance_at(pose[0], pose[1]) if escape else math.inf
+    if escape and here_m < config.caution_distance_m:  # hovering by a wall: step away (module docstring)
         for a, end in first.items():
             if a == Action.HOVER or end is None or robust_first[a] < 0:
                 continue

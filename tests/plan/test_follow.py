@@ -344,9 +344,9 @@ def test_without_a_fully_robust_step_takes_the_most_robust_one(rooms, table):
 
 
 def test_near_a_wall_it_steps_away_rather_than_hover_while_the_drift_reaches_the_wall(rooms, table):
-    """Hovering within the caution distance of a wall, where mean-safe motions would take the vehicle farther from
-    every wall but keep less of the noise margin for one step than hovering does, the follower does not hover again: a
-    hover stays
+    """A vehicle that has been hovering (``escape``) within the caution distance of a wall, where mean-safe motions
+    would take it farther from every wall but keep less of the noise margin for one step than hovering does, does not
+    hover again: a hover stays
     beside the wall while its drift random-walks into it (a vehicle hovered 20 steps that way beside a door jamb on a
     real whole floor, goal after back-off goal, and touched it). Ranked by one step's robustness alone it hovered in
     about one such case in five."""
@@ -372,7 +372,7 @@ def test_near_a_wall_it_steps_away_rather_than_hover_while_the_drift_reaches_the
         here = free.clearance_at(pose[0], pose[1])
         return min(free.clearance_at(*end[:2]), free.clearance_at(*drift[:2])) > here
 
-    checked = 0
+    checked = hovers = 0
     for _ in range(20000):
         if checked >= 15:
             break
@@ -382,6 +382,9 @@ def test_near_a_wall_it_steps_away_rather_than_hover_while_the_drift_reaches_the
         if not moves or hover <= max(rung(pose, previous, a) for a in moves):
             continue  # no step leads away, or one that does keeps as much of the margin as hovering
         checked += 1
-        action = choose_action(table, pose, previous, target_near(rng, pose), free, config)
+        target = target_near(rng, pose)
+        action = choose_action(table, pose, previous, target, free, config, escape=True)
         assert action != Action.HOVER and action is not None
+        hovers += choose_action(table, pose, previous, target, free, config) == Action.HOVER
     assert checked >= 15
+    assert hovers > 0  # without ``escape`` (a vehicle that has not been hovering) one step's robustness decides
