@@ -21,17 +21,14 @@ two thirds, one third and none of that margin (by path cost alone there it brush
 real floor three times in one flight; with the ladder twice, and the test split's one brush went away).
 ``noise_sigmas = 0`` turns the preference off.
 
-Hovering is the most robust single step (its noise is a third of a forward step's), but it stays where it is: near a
-wall, where no motion keeps the full margin, a follower ranked by one step's robustness hovers step after step while
-its drift random-walks into the wall (a learned flight on a real whole floor hovered 20 steps at 0.30 m from a door
-jamb, each goal and back-off goal in turn, until it touched it). So a caller whose vehicle has been hovering there
-passes ``escape``: inside the caution distance a mean-safe motion whose end and braking drift both lie farther from
-every observed obstacle than the vehicle is now then counts as robust as hovering, and stepping away from the wall is
-not ranked below waiting beside it once more. The planner loop does so after two hovers in a row
-(:class:`~edge_explorer.plan.frontier.GoalPlanner`). Applied at every step inside the caution distance it changed
-flights that were not hovering (Nearest Frontier on building C brushed the next wall two steps after such a step), and
-after a single hover it stepped a learned flight out from 0.255 m, where a forward step's noise is larger than the
-margin (test-00053).
+Hovering is the most robust single step (its noise is a third of a forward step's), but a vehicle that hovers because
+no motion keeps the margin will hover again, and its drift random-walks: a learned flight on a real whole floor hovered
+20 steps at 0.30 m from a door jamb, goal after back-off goal, until it touched it. So the caller says how many times
+in a row the vehicle has hovered (``hovers``), and a hover's noise counts as that of ``hovers + 1`` hovers
+(√(hovers + 1) times one step's): after a few, a motion that keeps as many standard deviations of its own noise ranks
+with it, and the path cost can take the vehicle away. (Ranking a step away from the wall with hovering outright
+after two hovers changed flights where that step was the riskier one: Nearest Frontier brushed a wall with it on a
+real whole floor.)
 
 Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
 observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at
@@ -298,7 +295,7 @@ def choose_action(
     config: FollowConfig = FollowConfig(),
     final_yaw_rad: float | None = None,
     blocked_actions: frozenset[int] = frozenset(),
-    escape: bool = False,
+    hovers: int = 0,
 ) -> int | None:
     """The action that best advances along ``path_xy_m`` ((N, 2) metres, from near the vehicle to the goal).
 
@@ -307,8 +304,8 @@ def choose_action(
     two poses, preferring sequences whose first step is robust to motion noise. Hover
     when no sequence is safe (a state the follower's own choices never lead to). ``blocked_actions`` are first
     actions known to be blocked from this very pose (a collision the map does not explain: the caller's memory).
-    ``escape``: the vehicle has been hovering here; near a wall a step away from it ranks with hovering (module
-    docstring).
+    ``hovers``: how many times in a row the vehicle has hovered; a hover's noise counts as that many more hovers'
+    (module docstring).
     """
     path = np.asarray(path_xy_m, dtype=np.float64).reshape(-1, 2)
     if arrived(pose, path, final_yaw_rad, config):
@@ -330,6 +327,8 @@ def choose_action(
         """The first step stays out of the band for every end ``sigmas`` standard deviations of its own and the
         following drift's noise away from the mean (the drift shifted with it)."""
         std_m = math.hypot(table.pos_std_m[previous_action, action], table.pos_std_m[action, Action.HOVER])
+        if action == Action.HOVER:
+            std_m *= math.sqrt(1 + hovers)  # the drift of the hovers still to come (module docstring)
         brake = body_to_map(*end, *table.mean_step(action, Action.HOVER))
         for dx, dy in sigmas * std_m * _DIRECTIONS:
             shifted = (end[0] + dx, end[1] + dy)
@@ -353,14 +352,6 @@ def choose_action(
 
     first = {a: None if a in blocked_actions else safe_step(pose, previous_action, a) for a in range(NUM_ACTIONS)}
     robust_first = {a: robustness(a, end) for a, end in first.items()}
-    here_m = free.clearance_at(pose[0], pose[1]) if escape else math.inf
-    if escape and here_m < config.caution_distance_m:  # hovering by a wall: step away (module docstring)
-        for a, end in first.items():
-            if a == Action.HOVER or end is None or robust_first[a] < 0:
-                continue
-            brake = body_to_map(*end, *table.mean_step(a, Action.HOVER))
-            if min(free.clearance_at(end[0], end[1]), free.clearance_at(brake[0], brake[1])) > here_m:
-                robust_first[a] = max(robust_first[a], robust_first[Action.HOVER])
     best_action, best_cost = int(Action.HOVER), math.inf
     best_robust = -1.0
     for a1, a2 in product(range(NUM_ACTIONS), repeat=2):

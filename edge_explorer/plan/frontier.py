@@ -40,7 +40,6 @@ from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec, resolution_factor
 _FULL_TURN_STEPS = 12  # 12 × 30°
 _MAX_HOVERS = 3  # hovers in a row after which the follower counts as stuck
 _MAX_HOVER_RUN = 6  # hovers in a row over any goals after which a vehicle next to a wall backs off into the open
-_ESCAPE_HOVERS = 2  # hovers in a row after which the follower ranks a step away from a near wall with hovering
 _NEARBY_M = 4.0  # graph cost within which the nearest-frontier search looks first
 _FAR_M = 1.0  # a goal that stalls with more path than this left to fly was not failed by its target …
 _MAX_RETREATS = 2  # … so the vehicle backs off (this many times until a target is seen) and tries again …
@@ -298,7 +297,7 @@ class GoalPlanner:
                 self.config.follow,
                 goal.yaw_rad,
                 frozenset(self._blocked.get(pose, ())),
-                escape=self._hover_run >= _ESCAPE_HOVERS,  # hovering beside a wall lets the drift reach it
+                hovers=self._hover_run,  # a vehicle that keeps hovering drifts (plan/follow.py)
             )
             goal.hovers = goal.hovers + 1 if action == Action.HOVER else 0
             if action is not None and goal.hovers <= _MAX_HOVERS:
