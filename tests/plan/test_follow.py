@@ -341,3 +341,29 @@ def test_without_a_fully_robust_step_takes_the_most_robust_one(rooms, table):
     assert checked >= 40
     assert shortfalls[True] == 0
     assert shortfalls[False] > 0
+
+
+def test_a_vehicle_that_keeps_hovering_beside_a_wall_moves_on_once_its_drift_would_reach_the_wall(rooms, table):
+    """Beside a wall, where a hover keeps more of the noise margin for one step than any motion, the follower hovers;
+    but a vehicle that has hovered there several times in a row (``hovers``) will keep drifting, and a hover's noise
+    then counts as that of the hovers to come: it takes a motion instead (a learned flight on a real whole floor
+    hovered 20 steps at 0.30 m from a door jamb and touched it)."""
+    raster, free = rooms
+    rng = np.random.default_rng(11)
+    config = FollowConfig()
+    near_wall = np.argwhere(
+        free.known_free & (free.clearance_m > 0.25) & (free.clearance_m < config.caution_distance_m)
+    )
+    cases = moved = 0
+    for _ in range(5000):
+        if cases >= 20:
+            break
+        pose, previous = pose_near(rng, raster, near_wall, [int(Action.HOVER)])
+        target = target_near(rng, pose)
+        if choose_action(table, pose, previous, target, free, config) != Action.HOVER:
+            continue
+        cases += 1
+        assert choose_action(table, pose, previous, target, free, config, hovers=0) == Action.HOVER  # the default
+        moved += choose_action(table, pose, previous, target, free, config, hovers=8) not in (Action.HOVER, None)
+    assert cases >= 20
+    assert moved == cases
