@@ -25,10 +25,12 @@ Hovering is the most robust single step (its noise is a third of a forward step'
 no motion keeps the margin will hover again, and its drift random-walks: a learned flight on a real whole floor hovered
 20 steps at 0.30 m from a door jamb, goal after back-off goal, until it touched it. So the caller says how many times
 in a row the vehicle has hovered (``hovers``), and a hover's noise counts as that of ``hovers + 1`` hovers
-(√(hovers + 1) times one step's): after a few, a motion that keeps as many standard deviations of its own noise ranks
-with it, and the path cost can take the vehicle away. (Ranking a step away from the wall with hovering outright
-after two hovers changed flights where that step was the riskier one: Nearest Frontier brushed a wall with it on a
-real whole floor.)
+(√(hovers + 1) times one step's): after three, a turn in place, whose noise is a hover's and is not counted up,
+ranks above it, so the vehicle turns (on 20 two-room poses beside a wall where it hovers, every one; a forward step
+there seldom keeps the margin), which changes its heading and with it the motions open to it next. Hovers and turns
+that alternate are each counted afresh, so their drift is not bounded by this rule. (Ranking a step away from the
+wall with hovering outright after two hovers changed flights where that step was the riskier one: Nearest Frontier
+brushed a wall with it on a real whole floor.)
 
 Safety uses :class:`FreeSpace`, derived from the observed 0.05 m map: the distance from each cell to the nearest
 observed OCCUPIED cell. A motion is safe if the vehicle's centre stays on known FREE cells whose distance is at

@@ -343,11 +343,11 @@ def test_without_a_fully_robust_step_takes_the_most_robust_one(rooms, table):
     assert shortfalls[False] > 0
 
 
-def test_a_vehicle_that_keeps_hovering_beside_a_wall_moves_on_once_its_drift_would_reach_the_wall(rooms, table):
+def test_a_vehicle_that_keeps_hovering_beside_a_wall_stops_hovering_once_its_drift_would_reach_the_wall(rooms, table):
     """Beside a wall, where a hover keeps more of the noise margin for one step than any motion, the follower hovers;
     but a vehicle that has hovered there several times in a row (``hovers``) will keep drifting, and a hover's noise
-    then counts as that of the hovers to come: it takes a motion instead (a learned flight on a real whole floor
-    hovered 20 steps at 0.30 m from a door jamb and touched it)."""
+    then counts as that of the hovers to come: it takes another action instead (here a turn in place, which changes
+    its heading; a learned flight on a real whole floor hovered 20 steps at 0.30 m from a door jamb and touched it)."""
     raster, free = rooms
     rng = np.random.default_rng(11)
     config = FollowConfig()
