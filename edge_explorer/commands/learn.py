@@ -197,6 +197,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--eval", action="append", default=[], metavar="NAME=JSON", help="an eval predictor JSON of these weights"
     )
     ship.add_argument("--command", default="", help="the training command line, for the card")
+    ship.add_argument(
+        "--whole-floors",
+        action="store_true",
+        help="the model also learned whole floors (train predictor-data --floors): its card says so (envelope_m "
+        "null) and no envelope limits its OCCUPIED predictions in flight",
+    )
     ship.set_defaults(func=_ship_predictor)
 
     cal = tsub.add_parser(
@@ -466,7 +472,7 @@ def _ship_predictor(args: argparse.Namespace) -> int:
         if not sep:
             raise EdgeExplorerError(f"--eval expects NAME=JSON, got {item!r}")
         evaluations[name] = Path(path)
-    card = ship_predictor(args.run, args.out, evaluations, args.command)
+    card = ship_predictor(args.run, args.out, evaluations, args.command, args.whole_floors)
     print(
         f"{args.out / card['weights']}: {card['architecture']['macs'] / 1e9:.2f} GMAC, "
         f"{card['architecture']['params'] / 1e6:.2f} M params, "

@@ -20,6 +20,7 @@ from edge_explorer.learn.hardware import torch_latency_ms
 from edge_explorer.learn.unet import UNet, count_macs_params, load_unet
 from edge_explorer.mapping.ego import PREDICTOR_WINDOW_CELLS
 from edge_explorer.predict import encoding
+from edge_explorer.predict.predictor import ENVELOPE_KEY
 
 CARD_FORMAT = "edge-explorer/model-card"
 WEIGHTS_NAME = "predictor.safetensors"
@@ -53,11 +54,15 @@ def training_stretches(run_dir: Path) -> list[dict]:
     return stretches
 
 
-def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], command: str) -> dict:
+def ship_predictor(
+    run_dir: Path, out_dir: Path, evaluations: dict[str, Path], command: str, whole_floors: bool = False
+) -> dict:
     """Copy ``run_dir/best.safetensors`` to ``out_dir`` and write ``card.json``; returns the card.
 
     ``evaluations`` maps a name (``test``, ``realplans``) to the JSON of ``edge-explorer eval predictor``, which
-    must have scored these very weights.
+    must have scored these very weights. ``whole_floors``: the model also learned whole floors, so the card's
+    ``envelope_m`` is null (no envelope, :func:`edge_explorer.predict.predictor.card_envelope_m`); otherwise the card
+    leaves it out (the 21 × 11 m plans' envelope).
     """
     best = run_dir / "best.safetensors"
     if not best.exists():
@@ -118,6 +123,7 @@ def ship_predictor(run_dir: Path, out_dir: Path, evaluations: dict[str, Path], c
             "hardware": sorted({x["hardware"] for x in stretches}),
         },
         "metrics": metrics,
+        **({ENVELOPE_KEY: None} if whole_floors else {}),
         "latency_torch_fp32_this_host": predictor_latency_ms(model),
         "host": {"machine": platform.machine(), "python": platform.python_version(), "torch": torch.__version__},
     }

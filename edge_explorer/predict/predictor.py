@@ -19,7 +19,10 @@ flown in the training simulator unchanged.
 Its :attr:`PredictorRuntime.thresholds` are those every reader thresholds this model's output with (the daemon, the
 simulator, the benchmark): the card's calibrated ``thresholds`` when it has them (docs/design.md §5: they win;
 written by ``edge-explorer train calibrate-predictor``), the defaults of :class:`~edge_explorer.predict.thresholding.
-ThresholdConfig` otherwise.
+ThresholdConfig` otherwise, with the footprint the model learned on from the card's ``envelope_m``: absent for a
+model trained on the 21 × 11 m plans (the default envelope: beyond it nothing is predicted OCCUPIED,
+:mod:`~edge_explorer.predict.thresholding`), ``null`` for one that also learned whole floors (no envelope; written by
+``train ship-predictor --whole-floors``).
 
 Calibrated probabilities (issue #56): when the card has a ``calibration`` entry (a strictly increasing map fitted on
 val, :mod:`edge_explorer.predict.probability_calibration`, written by ``edge-explorer train
@@ -44,9 +47,10 @@ from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import Cell, pad_shift, unshift
 from edge_explorer.predict.encoding import INPUT_CHANNELS, decode_probabilities, encode_windows
 from edge_explorer.predict.probability_calibration import CALIBRATION_KEY, ProbabilityCalibration
-from edge_explorer.predict.thresholding import ThresholdConfig
+from edge_explorer.predict.thresholding import ENVELOPE_M, ThresholdConfig
 
 THRESHOLDS_KEY = "thresholds"  # the card's calibrated {"t_f_max", "t_o", ...}
+ENVELOPE_KEY = "envelope_m"  # the card's training footprint [long, short] in metres; null: whole floors, no envelope
 
 
 class PredictorModelError(EdgeExplorerError):
@@ -59,15 +63,34 @@ def card_thresholds(card: Path) -> ThresholdConfig:
     if card.is_dir():
         card = card / CARD_FILE
     try:
-        entry = json.loads(card.read_text()).get(THRESHOLDS_KEY)
+        doc = json.loads(card.read_text())
+        entry = doc.get(THRESHOLDS_KEY)
     except (OSError, ValueError, AttributeError) as exc:
         raise CardError(f"{card}: cannot read the predictor's thresholds ({exc})") from exc
+    envelope = card_envelope_m(doc, card)
     if entry is None:
-        return ThresholdConfig()
+        return ThresholdConfig(envelope_m=envelope)
     try:
-        return ThresholdConfig(t_f_max=float(entry["t_f_max"]), t_o=float(entry["t_o"]))
+        return ThresholdConfig(t_f_max=float(entry["t_f_max"]), t_o=float(entry["t_o"]), envelope_m=envelope)
     except (TypeError, KeyError, ValueError) as exc:
         raise CardError(f"{card}: '{THRESHOLDS_KEY}' needs numbers t_f_max <= t_o in [0, 1] ({exc!r})") from exc
+
+
+def card_envelope_m(doc: dict, card: Path) -> tuple[float, float]:
+    """The footprint (long, short) in metres the card's model learned on: the default envelope when the card does
+    not say, (inf, inf) for ``null`` (a model that learned whole floors). Raises :class:`CardError` otherwise."""
+    if ENVELOPE_KEY not in doc:
+        return ENVELOPE_M
+    value = doc[ENVELOPE_KEY]
+    if value is None:
+        return (math.inf, math.inf)
+    try:
+        long_m, short_m = (float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise CardError(f"{card}: '{ENVELOPE_KEY}' must be [long, short] in metres or null ({exc!r})") from exc
+    if not long_m >= short_m > 0:
+        raise CardError(f"{card}: '{ENVELOPE_KEY}' must be [long, short] with long ≥ short > 0, got {value}")
+    return (long_m, short_m)
 
 
 def card_calibration(card: Path) -> ProbabilityCalibration | None:

@@ -166,6 +166,10 @@ def test_ship_copies_the_best_weights_with_a_card(shard_dir, tmp_path):
     assert card["architecture"]["macs"] > 0 and card["training"]["steps"] == 2
     assert card["metrics"]["test"]["levels"]["0.98"]["f1"] == 0.95
     assert json.loads((tmp_path / "models" / "card.json").read_text())["sha256"] == sha
+    assert "envelope_m" not in card  # learned on the 21 × 11 m plans: the default envelope
+    whole = ship_predictor(run, tmp_path / "whole", {}, "", whole_floors=True)
+    assert whole["envelope_m"] is None
+    assert json.loads((tmp_path / "whole" / "card.json").read_text())["envelope_m"] is None
     (tmp_path / "eval.json").write_text(json.dumps({**report, "model_sha256": "0" * 64}))
     with pytest.raises(EdgeExplorerError, match="another model"):
         ship_predictor(run, tmp_path / "models", {"test": tmp_path / "eval.json"}, "")

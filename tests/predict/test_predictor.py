@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from edge_explorer.predict.predictor import (
     thresholds_of,
 )
 from edge_explorer.predict.probability_calibration import ProbabilityCalibration
-from edge_explorer.predict.thresholding import ThresholdConfig
+from edge_explorer.predict.thresholding import ENVELOPE_M, ThresholdConfig, thresholded_map
 from edge_explorer.world.grid import CELL_DTYPE, FREE, OCCUPIED, UNKNOWN
 
 WINDOW = 16  # cells: a small stand-in for the 256×256 window; the wrapper takes the size from the model
@@ -154,6 +155,34 @@ def test_bad_thresholds_in_the_card_are_refused(tmp_path, entry):
     card = write_predictor_model(tmp_path / "predictor")
     add_thresholds(card, entry)
     with pytest.raises(CardError, match="'thresholds' needs"):
+        PredictorRuntime(load_model(card, ORDER))
+
+
+def test_the_card_s_training_envelope_reaches_the_thresholds_and_null_lifts_it(tmp_path):
+    card = write_predictor_model(tmp_path / "predictor")
+    add_thresholds(card, {"t_f_max": 0.1, "t_o": 0.9})
+    assert card_thresholds(card).envelope_m == ENVELOPE_M  # a card that does not say: the 21 × 11 m plans'
+    for value, expected in (([40.0, 20.0], (40.0, 20.0)), (None, (math.inf, math.inf))):
+        doc = json.loads(card.read_text())
+        doc["envelope_m"] = value
+        card.write_text(json.dumps(doc))
+        predictor = PredictorRuntime(load_model(card, ORDER))
+        assert predictor.thresholds == ThresholdConfig(t_f_max=0.1, t_o=0.9, envelope_m=expected)
+    # a whole-floor model: a wall predicted beyond the envelope stays OCCUPIED
+    observed = np.full((200, 200), UNKNOWN, dtype=CELL_DTYPE)
+    observed[100, 10:190] = FREE  # a 36 m corridor observed
+    probabilities = np.full(observed.shape, 0.99, dtype=np.float32)
+    assert (thresholded_map(probabilities, observed, 100.0, predictor.thresholds) == OCCUPIED).sum() > 0
+    assert (thresholded_map(probabilities, observed, 100.0, ThresholdConfig()) == OCCUPIED).sum() == 0
+
+
+@pytest.mark.parametrize("value", ["whole", [10.0, 20.0], [1.0]])
+def test_a_bad_training_envelope_in_the_card_is_refused(tmp_path, value):
+    card = write_predictor_model(tmp_path / "predictor")
+    doc = json.loads(card.read_text())
+    doc["envelope_m"] = value
+    card.write_text(json.dumps(doc))
+    with pytest.raises(CardError, match="'envelope_m' must be"):
         PredictorRuntime(load_model(card, ORDER))
 
 
