@@ -20,8 +20,8 @@ def load_predictor(reference: str) -> Predictor:
     ``reference`` is one of
 
     * a model folder (``models/predictor``) or its ``card.json``: the exported artifacts through the backend chain
-      (:func:`~edge_explorer.backends.chain.load_model`, int8 first, each checked against the card) — what the
-      daemon flies;
+      (:func:`~edge_explorer.backends.chain.load_model`, int8 first, each checked against the card), with the
+      whole-floor model its card names (``beyond_envelope``) — what the daemon flies;
     * a ``.safetensors`` file of :func:`~edge_explorer.learn.unet.save_unet`: the torch model (needs the ``train``
       extra), for weights that have not been exported yet;
     * ``module:callable``: any Python function, e.g. a test double.
@@ -39,9 +39,11 @@ def load_predictor(reference: str) -> Predictor:
         return TorchPredictor.from_file(path)
     if path.is_dir() or path.name == CARD_FILE:
         from edge_explorer.backends.chain import load_model
-        from edge_explorer.predict.predictor import PredictorRuntime
+        from edge_explorer.predict.predictor import PredictorRuntime, card_beyond
 
-        return PredictorRuntime(load_model(path))
+        beyond_card = card_beyond(path)  # the whole-floor model the card names, if any
+        beyond = None if beyond_card is None else PredictorRuntime(load_model(beyond_card))
+        return PredictorRuntime(load_model(path), beyond=beyond)
     module_name, _, attribute = reference.partition(":")
     if not module_name or not attribute:
         raise EdgeExplorerError(

@@ -47,10 +47,11 @@ from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.mapping.ego import Cell, pad_shift, unshift
 from edge_explorer.predict.encoding import INPUT_CHANNELS, decode_probabilities, encode_windows
 from edge_explorer.predict.probability_calibration import CALIBRATION_KEY, ProbabilityCalibration
-from edge_explorer.predict.thresholding import ENVELOPE_M, ThresholdConfig
+from edge_explorer.predict.thresholding import ENVELOPE_M, ThresholdConfig, beyond_envelope
 
 THRESHOLDS_KEY = "thresholds"  # the card's calibrated {"t_f_max", "t_o", ...}
 ENVELOPE_KEY = "envelope_m"  # the card's training footprint [long, short] in metres; null: whole floors, no envelope
+BEYOND_KEY = "beyond_envelope"  # the card's whole-floor model: the name of a model folder beside this one's
 
 
 class PredictorModelError(EdgeExplorerError):
@@ -110,13 +111,39 @@ def card_calibration(card: Path) -> ProbabilityCalibration | None:
         raise CardError(f"{card}: bad '{CALIBRATION_KEY}' entry ({exc!r})") from exc
 
 
+def card_beyond(card: Path) -> Path | None:
+    """The card of the model that predicts beyond the envelope of the card's model (``card.json`` or its folder): its
+    ``beyond_envelope`` folder beside this one's, None without the key. Raises :class:`CardError` when the key does
+    not name a folder with a card."""
+    if card.is_dir():
+        card = card / CARD_FILE
+    try:
+        name = json.loads(card.read_text()).get(BEYOND_KEY)
+    except (OSError, ValueError, AttributeError) as exc:
+        raise CardError(f"{card}: cannot read the predictor's card ({exc})") from exc
+    if name is None:
+        return None
+    beyond = card.parent.parent / str(name) / CARD_FILE
+    if not isinstance(name, str) or "/" in name or not beyond.is_file():
+        raise CardError(f"{card}: '{BEYOND_KEY}' must name a model folder beside this one with a card, got {name!r}")
+    return beyond
+
+
 class PredictorRuntime:
     """An exported map predictor ready to run, with its thresholds (see the module docstring)."""
 
-    def __init__(self, model: LoadedModel, thresholds: ThresholdConfig | None = None, calibrated: bool = True) -> None:
+    def __init__(
+        self,
+        model: LoadedModel,
+        thresholds: ThresholdConfig | None = None,
+        calibrated: bool = True,
+        beyond: PredictorRuntime | None = None,
+    ) -> None:
         """``thresholds``: None reads them from the card beside the loaded artifact (:func:`card_thresholds`) with,
         if ``calibrated``, the card's probability calibration (:func:`card_calibration`); a config given is used as
-        it is, its ``calibration`` (None: raw output) included. The runtime applies the map its thresholds carry."""
+        it is, its ``calibration`` (None: raw output) included. The runtime applies the map its thresholds carry.
+        ``beyond``: a model that learned whole floors, which predicts instead of this one once the observed map spans
+        more than this one's envelope (:meth:`for_map`); the thresholds then carry its own as ``beyond``."""
         inputs, outputs = model.backend.inputs, model.backend.outputs
         if len(inputs) != 1 or len(outputs) != 1:
             raise PredictorModelError(
@@ -144,14 +171,35 @@ class PredictorRuntime:
             folder = model.artifact.parent
             calibration = card_calibration(folder) if calibrated else None
             thresholds = dataclasses.replace(card_thresholds(folder), calibration=calibration)
+        if beyond is not None:
+            if beyond.window_cells != self.window_cells or beyond.beyond is not None:
+                raise PredictorModelError(
+                    f"{beyond.model.name}: the whole-floor model must take this one's {self.window_cells}-cell window "
+                    "and have no whole-floor model of its own"
+                )
+            thresholds = dataclasses.replace(thresholds, beyond=beyond.thresholds)
+        self.beyond = beyond
         self.thresholds = thresholds
         self.calibration = thresholds.calibration
         self._input_name = inputs[0].name
         self._output_name = outputs[0].name
 
+    def for_map(self, observed_codes: np.ndarray) -> PredictorRuntime:
+        """The model that predicts on this observed 0.20 m map (or window): :attr:`beyond` once its observed cells
+        span more than the envelope (the rule thresholding applies, :func:`~edge_explorer.predict.thresholding.
+        beyond_envelope`), this one otherwise. A building that fits the envelope never reaches ``beyond``."""
+        if self.beyond is not None and beyond_envelope(observed_codes, self.thresholds):
+            return self.beyond
+        return self
+
     def __call__(self, window: np.ndarray) -> np.ndarray:
         """float32 (S, S) occupancy probabilities of one int8 north-up ego window (S, S), calibrated if the card
-        says how."""
+        says how; by :attr:`beyond` when the window's own observed cells span more than the envelope (:meth:`predict`
+        decides on the whole map)."""
+        return self.for_map(window)._probabilities(window)
+
+    def _probabilities(self, window: np.ndarray) -> np.ndarray:
+        """This model's calibrated output."""
         probabilities = self.raw(window)
         return probabilities if self.calibration is None else self.calibration(probabilities)
 
@@ -170,9 +218,11 @@ class PredictorRuntime:
         return decode_probabilities(np.moveaxis(out, -1, 1) if self.channels_last and out.ndim == 4 else out)
 
     def predict(self, low_codes: np.ndarray, robot_cell: Cell) -> np.ndarray:
-        """float32 probabilities on the grid of ``low_codes`` (0.20 m observed map), NaN outside the window."""
+        """float32 probabilities on the grid of ``low_codes`` (0.20 m observed map), NaN outside the window; by
+        :attr:`beyond` once the map's observed cells span more than the envelope (:meth:`for_map`)."""
         window = pad_shift(low_codes, robot_cell, self.window_cells)
-        return unshift(self(window), robot_cell, low_codes.shape, fill=np.float32(np.nan))
+        probabilities = self.for_map(low_codes)._probabilities(window)
+        return unshift(probabilities, robot_cell, low_codes.shape, fill=np.float32(np.nan))
 
 
 def thresholds_of(predictor: object) -> ThresholdConfig:

@@ -16,7 +16,9 @@ no confidence threshold separates them; its free predictions there were 4 % wron
 more than the envelope (``envelope_m``: the 21 × 11 m footprint plus 2 m, long side and short side of their
 bounding box, :func:`observed_extent_m`) no predicted cell is OCCUPIED. The observed extent is the flight's own
 evidence (the plan's size is never read), and it cannot exceed the envelope in a building that fits it, so every
-flight inside the envelope is unchanged.
+flight inside the envelope is unchanged. A model that learned whole floors predicts there instead
+(:class:`~edge_explorer.predict.predictor.PredictorRuntime`'s ``beyond``): the config then carries that model's own
+thresholds as ``beyond``, and beyond the envelope its output is thresholded with them, OCCUPIED included.
 
 ``t_f_max`` and ``t_o`` are in the units of the model's *raw* output, the probabilities they were chosen on
 (``train calibrate-predictor``). When the model's card also calibrates the probabilities
@@ -48,7 +50,8 @@ class ThresholdConfig:
     t_o: float = 0.94
     max_plan_area_m2: float = MAX_PLAN_AREA_M2
     calibration: ProbabilityCalibration | None = None
-    envelope_m: tuple[float, float] = ENVELOPE_M  # (long, short): beyond it no cell is predicted OCCUPIED
+    envelope_m: tuple[float, float] = ENVELOPE_M  # (long, short): beyond it no cell is predicted OCCUPIED…
+    beyond: ThresholdConfig | None = None  # … unless a whole-floor model predicts there: its thresholds
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.t_f_max <= self.t_o <= 1.0:
@@ -103,14 +106,15 @@ def thresholded_map(
     config: ThresholdConfig = ThresholdConfig(),
     resolution_m: float = LOW_RES_M,
 ) -> np.ndarray:
-    """M_thres: observed cells as observed, the others f_t of the prediction with the dynamic free threshold; no
-    predicted OCCUPIED once the observed cells of a 2-D map (on a ``resolution_m`` grid) span more than the
-    envelope (a flat selection of cells, as calibration scores them, has no extent: it is thresholded as within)."""
+    """M_thres: observed cells as observed, the others f_t of the prediction with the dynamic free threshold; once
+    the observed cells of a 2-D map (on a ``resolution_m`` grid) span more than the envelope, the config's ``beyond``
+    thresholds (a whole-floor model's output) or, without them, no predicted OCCUPIED (a flat selection of cells, as
+    calibration scores them, has no extent: it is thresholded as within)."""
     if probabilities.shape != observed_codes.shape:
         raise ValueError(f"probabilities {probabilities.shape} and observed map {observed_codes.shape} differ")
-    predicted = threshold_probabilities(
-        probabilities, free_threshold(observed_area_m2, config), occupied_threshold(config)
-    )
-    if observed_codes.ndim == 2 and beyond_envelope(observed_codes, config, resolution_m):
+    beyond = observed_codes.ndim == 2 and beyond_envelope(observed_codes, config, resolution_m)
+    used = config.beyond if beyond and config.beyond is not None else config
+    predicted = threshold_probabilities(probabilities, free_threshold(observed_area_m2, used), occupied_threshold(used))
+    if beyond and config.beyond is None:
         predicted[predicted == OCCUPIED] = UNKNOWN
     return np.where(observed_codes != UNKNOWN, observed_codes, predicted)

@@ -65,6 +65,7 @@ from edge_explorer.errors import PlanError
 from edge_explorer.mapping import ego
 from edge_explorer.mapping.metrics import MapMetrics, map_metrics
 from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.predict.predictor import PredictorRuntime
 from edge_explorer.predict.thresholding import ThresholdConfig, thresholded_map
 from edge_explorer.sim.episode import move, previous_after
 from edge_explorer.vehicle import dynamics
@@ -373,7 +374,9 @@ class ExplorationEnv(gym.Env):
             return map_metrics(maps.low, truth.truth_low, truth.interior_low)
         low_cell = self._cell(maps.low_grid)
         window = ego.pad_shift(maps.low, low_cell, ego.PREDICTOR_WINDOW_CELLS)
-        probabilities = np.asarray(self.predictor(window), dtype=np.float32)
+        # an exported predictor with a whole-floor model picks it by the whole observed map, as the daemon does
+        model = self.predictor.for_map(maps.low) if isinstance(self.predictor, PredictorRuntime) else self.predictor
+        probabilities = np.asarray(model(window), dtype=np.float32)
         if probabilities.shape != window.shape:
             raise ValueError(f"predictor returned shape {probabilities.shape}, expected {window.shape}")
         on_map = ego.unshift(probabilities, low_cell, maps.low.shape)

@@ -20,6 +20,7 @@ from edge_explorer.mapping.ego import pad_shift
 from edge_explorer.predict.predictor import (
     PredictorModelError,
     PredictorRuntime,
+    card_beyond,
     card_calibration,
     card_thresholds,
     thresholds_of,
@@ -32,8 +33,15 @@ WINDOW = 16  # cells: a small stand-in for the 256×256 window; the wrapper take
 ORDER = ("edgetpu", "litert-cpu", "onnxruntime-cpu")
 
 
-def write_predictor_model(folder: Path, window: int = WINDOW, channels: int = 2, edgetpu: bool = False) -> Path:
-    """A ``predictor`` model folder: P(occupied) = sigmoid(10·occupied − 5) per cell, as ONNX with its card.
+def write_predictor_model(
+    folder: Path,
+    window: int = WINDOW,
+    channels: int = 2,
+    edgetpu: bool = False,
+    gain: float = 10.0,
+    bias: float = 5.0,
+) -> Path:
+    """A ``predictor`` model folder: P(occupied) = sigmoid(gain·occupied − bias) per cell, as ONNX with its card.
 
     ``edgetpu``: also list a ``*_edgetpu.tflite`` artifact (not a real one: no Edge TPU is present here anyway).
     Returns the card's path.
@@ -55,8 +63,8 @@ def write_predictor_model(folder: Path, window: int = WINDOW, channels: int = 2,
             helper.make_tensor("starts", TensorProto.INT64, [1], [channels - 1]),
             helper.make_tensor("ends", TensorProto.INT64, [1], [channels]),
             helper.make_tensor("axes", TensorProto.INT64, [1], [1]),
-            helper.make_tensor("ten", TensorProto.FLOAT, [], [10.0]),
-            helper.make_tensor("five", TensorProto.FLOAT, [], [5.0]),
+            helper.make_tensor("ten", TensorProto.FLOAT, [], [gain]),
+            helper.make_tensor("five", TensorProto.FLOAT, [], [bias]),
         ],
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)], ir_version=8)
@@ -184,6 +192,40 @@ def test_a_bad_training_envelope_in_the_card_is_refused(tmp_path, value):
     card.write_text(json.dumps(doc))
     with pytest.raises(CardError, match="'envelope_m' must be"):
         PredictorRuntime(load_model(card, ORDER))
+
+
+def test_the_whole_floor_model_the_card_names_predicts_once_the_observed_map_outspans_the_envelope(tmp_path):
+    card = write_predictor_model(tmp_path / "models" / "predictor")
+    floors = write_predictor_model(tmp_path / "models" / "predictor_floors", gain=20.0)
+    add_thresholds(floors, {"t_f_max": 0.2, "t_o": 0.8})
+    assert card_beyond(card) is None  # a card that names none
+    doc = json.loads(card.read_text())
+    doc["beyond_envelope"] = "predictor_floors"
+    card.write_text(json.dumps(doc))
+    assert card_beyond(card.parent) == floors
+    within = PredictorRuntime(load_model(card, ORDER))
+    predictor = PredictorRuntime(load_model(card, ORDER), beyond=PredictorRuntime(load_model(floors, ORDER)))
+    assert predictor.thresholds == ThresholdConfig(beyond=ThresholdConfig(t_f_max=0.2, t_o=0.8))
+    small = np.full((60, 60), UNKNOWN, dtype=CELL_DTYPE)
+    small[30, 5:55] = OCCUPIED  # a 10 m wall seen: within the envelope
+    large = np.full((60, 200), UNKNOWN, dtype=CELL_DTYPE)
+    large[30, 5:195] = OCCUPIED  # a 38 m wall seen: beyond it
+    cell = (31, 30)
+    assert predictor.for_map(small) is predictor and predictor.for_map(large) is predictor.beyond
+    np.testing.assert_array_equal(predictor.predict(small, cell), within.predict(small, cell))
+    on_large = predictor.predict(large, cell)
+    np.testing.assert_array_equal(on_large, predictor.beyond.predict(large, cell))
+    assert np.nanmax(on_large) > np.nanmax(within.predict(large, cell))  # the whole-floor model's own output
+
+
+@pytest.mark.parametrize("name", ["missing", "../predictor_floors", 3])
+def test_a_whole_floor_model_the_card_cannot_name_is_refused(tmp_path, name):
+    card = write_predictor_model(tmp_path / "models" / "predictor")
+    doc = json.loads(card.read_text())
+    doc["beyond_envelope"] = name
+    card.write_text(json.dumps(doc))
+    with pytest.raises(CardError, match="'beyond_envelope' must name a model folder beside this one"):
+        card_beyond(card)
 
 
 def test_the_card_s_probability_calibration_is_applied_to_every_output_and_to_the_thresholds(tmp_path):

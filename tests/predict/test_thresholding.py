@@ -1,5 +1,7 @@
 """Dynamic thresholding (edge_explorer.predict.thresholding)."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -73,6 +75,20 @@ def test_no_cell_is_predicted_occupied_beyond_the_training_envelope():
     assert (thresholded_map(low, _corridor(120, 10), 1000.0)[_corridor(120, 10) == UNKNOWN] == FREE).all()
     # a predictor trained on larger buildings widens its envelope
     assert not beyond_envelope(_corridor(120, 10), ThresholdConfig(envelope_m=(30.0, 20.0)))
+
+
+def test_a_whole_floor_model_s_thresholds_apply_beyond_the_envelope_and_keep_its_walls():
+    floors = ThresholdConfig(t_f_max=0.2, t_o=0.8, envelope_m=(math.inf, math.inf))
+    config = ThresholdConfig(beyond=floors)
+    p = np.full((80, 160), 0.9)  # above the whole-floor model's t_o, below the default's 0.94
+    p[:, :40] = 0.1  # below its t_f_max, above the default's 0.04
+    inside, beyond = _corridor(110, 60), _corridor(120, 10)
+    # within the envelope the config's own thresholds: nothing is sure enough
+    assert (thresholded_map(p, inside, 1000.0, config)[inside == UNKNOWN] == UNKNOWN).all()
+    fused = thresholded_map(p, beyond, 1000.0, config)
+    unseen = beyond == UNKNOWN
+    assert (fused[unseen & (p > 0.5)] == OCCUPIED).all() and (fused[unseen & (p < 0.5)] == FREE).all()
+    np.testing.assert_array_equal(fused[~unseen], FREE)  # observed cells keep their state
 
 
 def test_config_is_validated():

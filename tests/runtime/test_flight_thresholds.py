@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from edge_explorer.predict.thresholding import ThresholdConfig
@@ -27,6 +29,25 @@ def test_the_loaded_predictor_carries_its_card_s_thresholds(tmp_path):
     assert choose_models(tmp_path / "models", "frontier", ORDER).predictor.thresholds == ThresholdConfig()
     add_thresholds(card, {"t_f_max": 0.1, "t_o": 0.9})
     assert choose_models(tmp_path / "models", "frontier", ORDER).predictor.thresholds == CALIBRATED
+
+
+def test_the_daemon_loads_the_whole_floor_model_the_predictor_s_card_names_and_flies_on_without_a_bad_one(tmp_path):
+    card = write_predictor_model(tmp_path / "models" / "predictor")
+    floors = write_predictor_model(tmp_path / "models" / "predictor_floors", gain=20.0)
+    add_thresholds(floors, {"t_f_max": 0.2, "t_o": 0.8})
+    choice = choose_models(tmp_path / "models", "frontier", ORDER)
+    assert choice.predictor.beyond is None and "whole-floor predictor: none" in choice.notes[-1]
+    doc = json.loads(card.read_text())
+    doc["beyond_envelope"] = "predictor_floors"
+    card.write_text(json.dumps(doc))
+    choice = choose_models(tmp_path / "models", "frontier", ORDER)
+    assert choice.predictor.thresholds == ThresholdConfig(beyond=ThresholdConfig(t_f_max=0.2, t_o=0.8))
+    assert choice.predictor.beyond is not None
+    assert choice.notes[-1].startswith("whole-floor predictor: predictor: onnxruntime-cpu")
+    (floors.parent / "predictor_fp32.onnx").write_bytes(b"corrupt")  # the run goes on with the predictor alone
+    choice = choose_models(tmp_path / "models", "frontier", ORDER)
+    assert choice.predictor is not None and choice.predictor.beyond is None
+    assert choice.predictor.thresholds == ThresholdConfig() and "sha256" in choice.notes[-1]
 
 
 @pytest.mark.parametrize("calibrated", [True, False])

@@ -129,6 +129,25 @@ def test_episode_end(rooms):
     assert env.step(Action.HOVER)[2:4] == (False, True)  # truncated
 
 
+def test_a_whole_floor_model_changes_nothing_in_a_building_within_the_envelope(rooms, tmp_path):
+    from edge_explorer.backends.chain import load_model
+    from edge_explorer.predict.predictor import PredictorRuntime
+    from tests.predict.test_predictor import write_predictor_model
+
+    order = ("onnxruntime-cpu",)
+    within = write_predictor_model(tmp_path / "predictor", window=ego.PREDICTOR_WINDOW_CELLS)
+    # the whole-floor stand-in paints every unseen cell solid: any call to it would show in the maps
+    floors = write_predictor_model(tmp_path / "floors", window=ego.PREDICTOR_WINDOW_CELLS, bias=-5.0)
+    maps = []
+    for beyond in (None, PredictorRuntime(load_model(floors, order))):
+        env = ExplorationEnv([rooms], predictor=PredictorRuntime(load_model(within, order), beyond=beyond))
+        env.reset(seed=0)
+        maps.append([env.step(action)[4]["correct_coverage"] for action in (Action.FORWARD, Action.TURN_LEFT)])
+        maps[-1].append(env.thresholded_low.copy())
+    assert maps[0][:2] == maps[1][:2]
+    np.testing.assert_array_equal(maps[0][2], maps[1][2])
+
+
 def test_predictor_layer(rooms):
     env = ExplorationEnv([rooms], predictor=lambda window: np.ones(window.shape, dtype=np.float32))
     _, info = env.reset(seed=0)

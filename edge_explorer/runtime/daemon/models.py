@@ -4,7 +4,7 @@ predictor when it loads, each on the device profile's backend order, and the log
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,7 +13,7 @@ from edge_explorer.backends.chain import load_model
 from edge_explorer.errors import EdgeExplorerError
 from edge_explorer.plan.policy import PolicyRuntime
 from edge_explorer.plan.registry import PLANNERS
-from edge_explorer.predict.predictor import PredictorRuntime
+from edge_explorer.predict.predictor import PredictorRuntime, card_beyond
 
 
 class ModelSetupError(EdgeExplorerError):
@@ -86,4 +86,28 @@ def choose_models(
         notes.append(f"planner: drl ({said})" if policy else f"planner: frontier (no usable DRL policy: {said})")
     predictor, said = load("predictor", PredictorRuntime)
     notes.append(f"predictor: {said}" if predictor else f"predictor: none, coverage counts observed cells ({said})")
+    if predictor is not None:
+        predictor, said = _with_beyond(predictor, models_dir / "predictor" / CARD_FILE, load)
+        notes.append(said)
     return ModelChoice(policy, predictor, tuple(notes))
+
+
+def _with_beyond(
+    predictor: PredictorRuntime, card: Path, load: Callable[[str, type], tuple[object | None, str]]
+) -> tuple[PredictorRuntime, str]:
+    """The predictor with the whole-floor model its card names (``beyond_envelope``) and the note that says so; the
+    predictor alone when the card names none, or the model does not load (then the envelope rule holds: beyond it
+    nothing is predicted OCCUPIED)."""
+    try:
+        beyond_card = card_beyond(card)
+    except EdgeExplorerError as exc:
+        return predictor, f"whole-floor predictor: none ({exc})"
+    if beyond_card is None:
+        return predictor, "whole-floor predictor: none (the predictor's card names none)"
+    beyond, said = load(beyond_card.parent.name, PredictorRuntime)
+    if beyond is None:
+        return predictor, f"whole-floor predictor: none ({said})"
+    try:
+        return PredictorRuntime(predictor.model, predictor.thresholds, beyond=beyond), f"whole-floor predictor: {said}"
+    except EdgeExplorerError as exc:
+        return predictor, f"whole-floor predictor: none ({exc})"
