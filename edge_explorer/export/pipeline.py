@@ -186,7 +186,7 @@ def run_export(
     convert_env: Path = tflite.CONVERT_ENV,
     log: Callable[[str], None] = print,
 ) -> ExportReport:
-    """Run the recipe; artifacts land in ``out_root/<name>/`` only if every gate passes (see module docstring)."""
+    """Run the recipe; artifacts land in ``out_root/<folder>/`` only if every gate passes (see module docstring)."""
     if network is None:
         check_inputs_exist(recipe)
     if "tflite_int8" in recipe.formats:
@@ -200,7 +200,8 @@ def run_export(
             network = network.prepare([network.cast(f) for f in observations.calibration])
         out_root.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=out_root, prefix=f".{recipe.name}-export-") as tmp:
-            report = _export_in(Path(tmp), recipe, out_root / recipe.name, network, observations, convert_env, log)
+            out_dir = out_root / recipe.out_folder
+            report = _export_in(Path(tmp), recipe, out_dir, network, observations, convert_env, log)
             if report.passed:
                 _install(Path(tmp), report)
     finally:

@@ -4,6 +4,8 @@ A recipe says what to export and how to judge it::
 
     model = "predictor"                     # predictor | policy: the network, its calibration, gates
     checkpoint = "models/predictor/predictor.safetensors"   # relative to the recipe's folder's parent (the repo)
+    folder = "predictor"                    # optional: the model folder under --out (default: the model's name),
+                                            # e.g. predictor_floors for the whole-floor predictor
 
     [calibration]                           # observations recorded from simulator rollouts on the val split
     split = "val"
@@ -96,11 +98,17 @@ class Recipe:
     formats: tuple[str, ...]
     gates: Mapping[str, float] = field(default_factory=dict)
     latency_repeats: int = 30
+    folder: str = ""  # the model folder under ``--out``; "" = the model's name
 
     @property
     def name(self) -> str:
-        """The model folder under ``--out`` (``models/<name>/``) and the artifacts' file prefix."""
+        """The artifacts' file prefix: the model (``predictor_int8.tflite``)."""
         return self.model
+
+    @property
+    def out_folder(self) -> str:
+        """The model folder under ``--out`` (``models/<out_folder>/``)."""
+        return self.folder or self.model
 
 
 def _table(doc: Mapping[str, Any], key: str, where: Path) -> dict[str, Any]:
@@ -140,10 +148,14 @@ def load_recipe(path: str | Path) -> Recipe:
         raise RecipeError(f"{path}: not valid TOML ({exc})") from exc
     root = path.resolve().parent.parent
     where = str(path)
-    _check_keys(where, doc, ("model", "checkpoint", "calibration", "quantization", "formats", "gates", "latency"))
+    keys = ("model", "checkpoint", "folder", "calibration", "quantization", "formats", "gates", "latency")
+    _check_keys(where, doc, keys)
     model = doc.get("model")
     if model not in MODELS:
         raise RecipeError(f"{where}: 'model' must be one of {', '.join(MODELS)}, got {model!r}")
+    folder = _typed(where, "folder", doc.get("folder", model), str)
+    if not folder or "/" in folder or folder.startswith("."):
+        raise RecipeError(f"{where}: 'folder' must be a plain folder name under --out, got {folder!r}")
     checkpoint = root / _typed(where, "checkpoint", doc.get("checkpoint"), str)
 
     cal = _table(doc, "calibration", path)
@@ -205,7 +217,8 @@ def load_recipe(path: str | Path) -> Recipe:
     lat = _table(doc, "latency", path)
     _check_keys(f"{where} [latency]", lat, ("repeats",))
     repeats = _positive(f"{where} [latency]", "repeats", lat.get("repeats", 30))
-    return Recipe(path, model, checkpoint, calibration, quantization, tuple(dict.fromkeys(produce)), gates, repeats)
+    formats = tuple(dict.fromkeys(produce))
+    return Recipe(path, model, checkpoint, calibration, quantization, formats, gates, repeats, folder)
 
 
 def check_inputs_exist(recipe: Recipe) -> None:

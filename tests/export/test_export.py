@@ -68,6 +68,7 @@ def quiet(_: str) -> None:
         (lambda t: t.replace("max_f1_drop = 0.01\n", ""), "needs the gate(s) max_f1_drop"),
         (lambda t: t.replace('"onnx_int8"]', '"onnx_int4"]'), "'produce' must be a non-empty list"),
         (lambda t: t.replace('model = "predictor"', 'model = "planner"'), "'model' must be one of"),
+        (lambda t: t.replace('model = "predictor"', 'model = "predictor"\nfolder = "../x"'), "'folder' must be a plain"),
         (lambda t: t.replace("[calibration]", '[calibration]\nexplorer = "policy"'), "'explorer' for a predictor"),
         (lambda t: t.replace("[quantization]", "[quantization]\nonnx_float_output_conv = 1"), "onnx_float_output_conv"),
     ],
@@ -84,6 +85,8 @@ def test_the_shipped_recipes_are_valid():
     recipes = [load_recipe(p) for p in sorted(root.glob("*.toml"))]
     assert {r.model for r in recipes} == {"predictor", "policy"}
     assert all(r.checkpoint.parent.parent.name == "models" for r in recipes)
+    assert all(r.checkpoint.parent.name == r.out_folder for r in recipes)  # each installs beside its checkpoint
+    assert {r.out_folder for r in recipes} == {"predictor", "predictor_floors", "policy"}
 
 
 def test_cli_reports_a_missing_checkpoint_in_one_line_with_exit_2(tmp_path, capsys):
