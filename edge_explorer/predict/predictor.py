@@ -58,16 +58,25 @@ class PredictorModelError(EdgeExplorerError):
     """The loaded model does not have the predictor's input and output layout."""
 
 
-def card_thresholds(card: Path) -> ThresholdConfig:
-    """The thresholds of a predictor's card (``card.json`` or its folder): its calibrated ``thresholds`` when it has
-    them, the defaults otherwise. Raises :class:`CardError` if the card is unreadable or its values are invalid."""
+def _card_doc(card: Path, what: str) -> tuple[Path, dict]:
+    """(the card's path, its JSON object) for ``card.json`` or its folder; :class:`CardError` naming ``what`` was
+    being read when the card is unreadable."""
     if card.is_dir():
         card = card / CARD_FILE
     try:
         doc = json.loads(card.read_text())
-        entry = doc.get(THRESHOLDS_KEY)
-    except (OSError, ValueError, AttributeError) as exc:
-        raise CardError(f"{card}: cannot read the predictor's thresholds ({exc})") from exc
+        if not isinstance(doc, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as exc:
+        raise CardError(f"{card}: cannot read the predictor's {what} ({exc})") from exc
+    return card, doc
+
+
+def card_thresholds(card: Path) -> ThresholdConfig:
+    """The thresholds of a predictor's card (``card.json`` or its folder): its calibrated ``thresholds`` when it has
+    them, the defaults otherwise. Raises :class:`CardError` if the card is unreadable or its values are invalid."""
+    card, doc = _card_doc(card, "thresholds")
+    entry = doc.get(THRESHOLDS_KEY)
     envelope = card_envelope_m(doc, card)
     if entry is None:
         return ThresholdConfig(envelope_m=envelope)
@@ -97,12 +106,8 @@ def card_envelope_m(doc: dict, card: Path) -> tuple[float, float]:
 def card_calibration(card: Path) -> ProbabilityCalibration | None:
     """The probability calibration map of a predictor's card (``card.json`` or its folder), None without one. Raises
     :class:`CardError` if the card is unreadable or the entry is invalid."""
-    if card.is_dir():
-        card = card / CARD_FILE
-    try:
-        entry = json.loads(card.read_text()).get(CALIBRATION_KEY)
-    except (OSError, ValueError, AttributeError) as exc:
-        raise CardError(f"{card}: cannot read the predictor's calibration ({exc})") from exc
+    card, doc = _card_doc(card, "calibration")
+    entry = doc.get(CALIBRATION_KEY)
     if entry is None:
         return None
     try:
@@ -115,12 +120,8 @@ def card_beyond(card: Path) -> Path | None:
     """The card of the model that predicts beyond the envelope of the card's model (``card.json`` or its folder): its
     ``beyond_envelope`` folder beside this one's, None without the key. Raises :class:`CardError` when the key does
     not name a folder with a card."""
-    if card.is_dir():
-        card = card / CARD_FILE
-    try:
-        name = json.loads(card.read_text()).get(BEYOND_KEY)
-    except (OSError, ValueError, AttributeError) as exc:
-        raise CardError(f"{card}: cannot read the predictor's card ({exc})") from exc
+    card, doc = _card_doc(card, "whole-floor model")
+    name = doc.get(BEYOND_KEY)
     if name is None:
         return None
     beyond = card.parent.parent / str(name) / CARD_FILE

@@ -68,7 +68,7 @@ def quiet(_: str) -> None:
         (lambda t: t.replace("max_f1_drop = 0.01\n", ""), "needs the gate(s) max_f1_drop"),
         (lambda t: t.replace('"onnx_int8"]', '"onnx_int4"]'), "'produce' must be a non-empty list"),
         (lambda t: t.replace('model = "predictor"', 'model = "planner"'), "'model' must be one of"),
-        (lambda t: t.replace('model = "predictor"', 'model = "predictor"\nfolder = "../x"'), "'folder' must be a plain"),
+        (lambda t: t.replace('model = "predictor"', 'model = "predictor"\nfolder = ".."'), "'folder' must be a plain"),
         (lambda t: t.replace("[calibration]", '[calibration]\nexplorer = "policy"'), "'explorer' for a predictor"),
         (lambda t: t.replace("[quantization]", "[quantization]\nonnx_float_output_conv = 1"), "onnx_float_output_conv"),
     ],

@@ -82,11 +82,16 @@ def write_predictor_model(
     return card
 
 
+def set_card_key(card: Path, key: str, value: object) -> None:
+    """Set one top-level key of a card (the artifacts' checks still pass: only a key changes)."""
+    doc = json.loads(card.read_text())
+    doc[key] = value
+    card.write_text(json.dumps(doc))
+
+
 def add_thresholds(card: Path, entry: object) -> None:
     """Add a ``thresholds`` key to a card as ``edge-explorer train calibrate-predictor`` does (nothing else changes)."""
-    doc = json.loads(card.read_text())
-    doc["thresholds"] = entry
-    card.write_text(json.dumps(doc))
+    set_card_key(card, "thresholds", entry)
 
 
 def expected_probability(codes: np.ndarray) -> np.ndarray:
@@ -171,9 +176,7 @@ def test_the_card_s_training_envelope_reaches_the_thresholds_and_null_lifts_it(t
     add_thresholds(card, {"t_f_max": 0.1, "t_o": 0.9})
     assert card_thresholds(card).envelope_m == ENVELOPE_M  # a card that does not say: the 21 × 11 m plans'
     for value, expected in (([40.0, 20.0], (40.0, 20.0)), (None, (math.inf, math.inf))):
-        doc = json.loads(card.read_text())
-        doc["envelope_m"] = value
-        card.write_text(json.dumps(doc))
+        set_card_key(card, "envelope_m", value)
         predictor = PredictorRuntime(load_model(card, ORDER))
         assert predictor.thresholds == ThresholdConfig(t_f_max=0.1, t_o=0.9, envelope_m=expected)
     # a whole-floor model: a wall predicted beyond the envelope stays OCCUPIED
@@ -187,9 +190,7 @@ def test_the_card_s_training_envelope_reaches_the_thresholds_and_null_lifts_it(t
 @pytest.mark.parametrize("value", ["whole", [10.0, 20.0], [1.0]])
 def test_a_bad_training_envelope_in_the_card_is_refused(tmp_path, value):
     card = write_predictor_model(tmp_path / "predictor")
-    doc = json.loads(card.read_text())
-    doc["envelope_m"] = value
-    card.write_text(json.dumps(doc))
+    set_card_key(card, "envelope_m", value)
     with pytest.raises(CardError, match="'envelope_m' must be"):
         PredictorRuntime(load_model(card, ORDER))
 
@@ -199,9 +200,7 @@ def test_the_whole_floor_model_the_card_names_predicts_once_the_observed_map_out
     floors = write_predictor_model(tmp_path / "models" / "predictor_floors", gain=20.0)
     add_thresholds(floors, {"t_f_max": 0.2, "t_o": 0.8})
     assert card_beyond(card) is None  # a card that names none
-    doc = json.loads(card.read_text())
-    doc["beyond_envelope"] = "predictor_floors"
-    card.write_text(json.dumps(doc))
+    set_card_key(card, "beyond_envelope", "predictor_floors")
     assert card_beyond(card.parent) == floors
     within = PredictorRuntime(load_model(card, ORDER))
     predictor = PredictorRuntime(load_model(card, ORDER), beyond=PredictorRuntime(load_model(floors, ORDER)))
@@ -221,9 +220,7 @@ def test_the_whole_floor_model_the_card_names_predicts_once_the_observed_map_out
 @pytest.mark.parametrize("name", ["missing", "../predictor_floors", 3])
 def test_a_whole_floor_model_the_card_cannot_name_is_refused(tmp_path, name):
     card = write_predictor_model(tmp_path / "models" / "predictor")
-    doc = json.loads(card.read_text())
-    doc["beyond_envelope"] = name
-    card.write_text(json.dumps(doc))
+    set_card_key(card, "beyond_envelope", name)
     with pytest.raises(CardError, match="'beyond_envelope' must name a model folder beside this one"):
         card_beyond(card)
 
@@ -251,8 +248,6 @@ def test_the_card_s_probability_calibration_is_applied_to_every_output_and_to_th
 @pytest.mark.parametrize("entry", [{"method": "isotonic", "params": {}}, {"method": "beta"}, [1, 2]])
 def test_a_bad_calibration_in_the_card_is_refused(tmp_path, entry):
     card = write_predictor_model(tmp_path / "predictor")
-    doc = json.loads(card.read_text())
-    doc["calibration"] = entry
-    card.write_text(json.dumps(doc))
+    set_card_key(card, "calibration", entry)
     with pytest.raises(CardError, match="'calibration'"):
         PredictorRuntime(load_model(card, ORDER))
