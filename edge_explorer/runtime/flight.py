@@ -133,6 +133,8 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
             recorder = None
             if options.record_dir is not None:
                 recorder = stack.enter_context(Recorder(options.record_dir, source.intrinsics))
+            printer = _progress_printer(models, config.exploration_planner) if options.progress else None
+            model_notes, backends = models.notes, models.backends()
             daemon = Daemon(
                 config,
                 link,
@@ -142,11 +144,14 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
                 truth=CoverageTruth(raster) if raster is not None else None,
                 recorder=recorder,
             )
+            # The daemon holds the models alone from here, so it can release the shipped predictor's interpreter
+            # once the whole-floor one has taken over (the summary keeps only their names).
+            del models
             vehicle_thread = simulation.vehicle_thread if simulation is not None else None
             vehicle_cpu0 = thread_cpu_s(vehicle_thread) if vehicle_thread is not None else 0.0
             trim_heap()  # the set-up's transients (the plan's loading, the models' warm-up) are gone by now
             with _stop_on_signals(daemon):
-                report = daemon.run(_progress_printer(models, config.exploration_planner) if options.progress else None)
+                report = daemon.run(printer)
             vehicle_cpu_s = (thread_cpu_s(vehicle_thread) if vehicle_thread is not None else 0.0) - vehicle_cpu0
             collisions = vehicle.state().collisions if vehicle is not None else None
             peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -155,7 +160,18 @@ def fly(options: RunOptions, simulation: Simulation | None = None) -> dict[str, 
         children_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         memory_mb = {"peak_rss_mb": peak_rss_mb, "rss_at_end_mb": rss_now_mb, "children_peak_rss_mb": children_mb}
         summary = run_summary(
-            options, profile, models, raster, start, noise_seed, report, collisions, vehicle_cpu_s, memory_mb, daemon
+            options,
+            profile,
+            model_notes,
+            backends,
+            raster,
+            start,
+            noise_seed,
+            report,
+            collisions,
+            vehicle_cpu_s,
+            memory_mb,
+            daemon,
         )
         write_summary(out, summary, daemon, raster)
         print_summary(summary)

@@ -16,7 +16,8 @@ from edge_explorer.runtime.options import RunOptions
 def run_summary(
     options: RunOptions,
     profile: Any,
-    models: Any,
+    model_notes: tuple[str, ...],
+    backends: dict[str, str | None],
     raster: Any,
     start: tuple[float, float, float] | None,
     noise_seed: int,
@@ -43,11 +44,8 @@ def run_summary(
         "noise_seed": noise_seed,
         "start_pose": start,
         "planner": report.planner,
-        "models": list(models.notes),
-        "backends": {
-            "policy": None if models.policy is None else models.policy.model.backend.name,
-            "predictor": None if models.predictor is None else models.predictor.model.backend.name,
-        },
+        "models": list(model_notes),
+        "backends": backends,
         "ending": report.ending,
         "why": explain_ending(report, daemon),
         "coverage": report.coverage,

@@ -54,7 +54,7 @@ from edge_explorer.sim.depth_source import SimulatedDepthSource
 from edge_explorer.sim.vehicle import SimulatedVehicle, VehicleConfig, VehicleState
 from edge_explorer.vehicle.camera import CameraPose, DepthIntrinsics
 from edge_explorer.world.catalog import plan_to_raster
-from edge_explorer.world.grid import FREE, OCCUPIED
+from edge_explorer.world.grid import FREE, OCCUPIED, GridSpec
 from edge_explorer.world.plan import save_plan_json
 from tests.conftest import two_room_plan
 from tests.plan.test_policy import write_policy_model
@@ -900,3 +900,19 @@ def test_the_acceptance_bench_counts_single_flights_and_the_benchmarks_own_runs_
     assert row["bench_runs"] == 3 and row["bench_runs_within_tolerance"] == 1  # 30 and 50 are 25 % off
     assert table["all"]["flights_within_tolerance"] == 1 and table["all"]["bench_runs"] == 3
     assert "| 1/3 / 1/3 |" in markdown_table(table)
+
+
+def test_the_whole_floor_predictor_takes_over_for_good_once_the_observed_cells_outspan_the_envelope(raster, tmp_path):
+    """The daemon swaps to the whole-floor model at the first decision beyond the envelope and drops the shipped one
+    (its interpreter's memory goes back); before that, and in any building that fits the envelope, it keeps it."""
+    within = PredictorRuntime(load_model(write_predictor_model(tmp_path / "predictor"), ORDER))
+    beyond = PredictorRuntime(load_model(write_predictor_model(tmp_path / "floors", bias=-5.0), ORDER))
+    predictor = PredictorRuntime(within.model, within.thresholds, beyond=beyond)
+    link = MavlinkLink(LinkConfig(connect="udpout:127.0.0.1:9"))
+    daemon = Daemon(CONFIG, link, source=None, predictor=predictor)  # type: ignore[arg-type]
+    maps = ObservedMaps.empty(raster.grid)
+    maps.apply_patch(10, 10, np.full((20, 20), FREE, dtype=np.int8))  # a 1 m patch seen: within the envelope
+    assert daemon.decisions.predict(maps, (15, 15)) is not None and daemon.predictor is predictor
+    wide = ObservedMaps.empty(GridSpec((0.0, 0.0), 0.05, (100, 600)))  # 30 m long
+    wide.apply_patch(40, 10, np.full((20, 580), FREE, dtype=np.int8))  # a 29 m corridor seen: beyond it
+    assert daemon.decisions.predict(wide, (12, 75)) is not None and daemon.predictor is beyond

@@ -265,6 +265,13 @@ class DecisionPipeline:
         self.probabilities = None
         if self.predictor is None:
             return None
+        model = self.predictor.for_map(maps.low)
+        if model is not self.predictor:
+            # A flight's observed extent only grows: the whole-floor model predicts for the rest of it, and the shipped
+            # one's interpreter is released (about 12 MB of a 300 MB budget). Thresholding keeps the config's
+            # thresholds, whose ``beyond`` are this model's.
+            log.info("the observed cells span more than the predictor's envelope: the whole-floor predictor takes over")
+            self.predictor = model
         try:
             with self.timings.timed("predictor"):
                 probabilities = self.predictor.predict(maps.low, low_cell)

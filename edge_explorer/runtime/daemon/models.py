@@ -28,6 +28,13 @@ class ModelChoice:
     predictor: PredictorRuntime | None
     notes: tuple[str, ...]
 
+    def backends(self) -> dict[str, str | None]:
+        """Where each model runs (the run summary's ``backends``), None for a model the run does not use."""
+        return {
+            "policy": None if self.policy is None else self.policy.model.backend.name,
+            "predictor": None if self.predictor is None else self.predictor.model.backend.name,
+        }
+
 
 def _flight_ready(card: Path) -> tuple[bool, str]:
     """(ready, why) from a policy card's ``flight_ready`` record; a card without one is not ready."""
