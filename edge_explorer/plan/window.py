@@ -59,7 +59,7 @@ from edge_explorer.plan.frontier import Goal, GoalPlanner, PlannerConfig, View, 
 from edge_explorer.plan.route import Route, RouteConfig, nearest_route, via_index
 from edge_explorer.predict.thresholding import ENVELOPE_M, observed_extent_m
 from edge_explorer.vehicle.dynamics import Action, ActionTable
-from edge_explorer.world.grid import GridSpec
+from edge_explorer.world.grid import UNKNOWN, GridSpec
 
 _TRANSIT_TRIES = 3  # routes the fine graph could not follow in a row before their target is dropped
 _ROUTES_PER_TARGET = 4  # routes to the same target cells before they are dropped (the local planner took over, the
@@ -127,6 +127,30 @@ def place_window(low_grid: GridSpec, pose_xy_m: tuple[float, float], size_m: flo
     row0 = int(np.clip(row - rows // 2, 0, low_grid.shape[0] - rows))
     col0 = int(np.clip(col - cols // 2, 0, low_grid.shape[1] - cols))
     return Window(row0, col0, (rows, cols))
+
+
+def known_window(maps: ObservedMaps, keep_xy_m: tuple[tuple[float, float], ...], margin_m: float) -> Window:
+    """The least crop of the 0.20 m map that holds every known cell of ``maps`` (on either grid) and the points
+    ``keep_xy_m``, grown by ``margin_m`` and clipped to the map. A search that crosses only known cells, and measures
+    its free space at most ``margin_m`` beyond them, finds on this crop what it finds on the whole map, at the cost
+    of the known part only: the maps of a flight grow ahead of the vehicle, so on a whole floor a third or more of
+    them is unknown slack (the daemon's way home, :mod:`edge_explorer.runtime.daemon.phases`)."""
+    grid, factor = maps.low_grid, maps.factor
+    high_known, low_known = maps.high != UNKNOWN, maps.low != UNKNOWN
+    points = np.array([grid.cell_of(*xy) for xy in keep_xy_m], dtype=np.int64).reshape(-1, 2)
+    points = np.clip(points, 0, np.array(grid.shape) - 1)
+    rows = np.concatenate(
+        [np.flatnonzero(high_known.any(axis=1)) // factor, np.flatnonzero(low_known.any(axis=1)), points[:, 0]]
+    )
+    cols = np.concatenate(
+        [np.flatnonzero(high_known.any(axis=0)) // factor, np.flatnonzero(low_known.any(axis=0)), points[:, 1]]
+    )
+    if not rows.size:
+        return Window(0, 0, grid.shape)
+    grow = int(math.ceil(margin_m / grid.resolution_m))
+    row0, col0 = max(int(rows.min()) - grow, 0), max(int(cols.min()) - grow, 0)
+    row1, col1 = min(int(rows.max()) + grow + 1, grid.shape[0]), min(int(cols.max()) + grow + 1, grid.shape[1])
+    return Window(row0, col0, (row1 - row0, col1 - col0))
 
 
 def reaches_border(wanted: Window, window: Window, grid: GridSpec) -> bool:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from edge_explorer.mapping.observed import ObservedMaps
+from edge_explorer.plan.follow import FreeSpace
 from edge_explorer.plan.registry import build_planner
 from edge_explorer.plan.waypoint import path_home
 from edge_explorer.runtime.daemon import (
@@ -33,7 +34,7 @@ from edge_explorer.runtime.depth_sources import DepthFrame
 from edge_explorer.runtime.mavlink_link import LinkError, LinkStatus, Pose
 from edge_explorer.vehicle.camera import DepthIntrinsics
 from edge_explorer.vehicle.dynamics import Action, load_action_table
-from edge_explorer.world.grid import FREE, GridSpec
+from edge_explorer.world.grid import FREE, UNKNOWN, GridSpec
 
 CONFIG = DaemonConfig(max_hold_s=5.0, home_hover_s=2.0, return_home=False)
 HEALTHY = LinkStatus(True, False, False, True, "OFFBOARD", 0.1, 0.01, 0, 0, 0, 0, 0)
@@ -620,3 +621,27 @@ def test_the_goal_policy_scores_on_its_own_daemon_thread_and_its_failures_reach_
     assert len(timings.samples_ms("policy")) == 2
     with pytest.raises(RuntimeError, match="model failed"):
         policy.submit({"fail": True}).result(timeout=5)
+
+
+def test_the_way_home_is_planned_on_the_known_part_of_growing_maps(clock, monkeypatch):
+    # a whole floor's maps hold unknown slack ahead of the flight: the way home is planned on the known cells (its
+    # transient was the daemon's peak memory), and it is the path the whole map gives
+    from edge_explorer.mapping.observed import coarsen_codes
+
+    high = np.full((400, 800), UNKNOWN, dtype=np.int8)  # 40 m × 20 m of maps, a 20 m × 8 m part known
+    high[100:260, 200:600] = FREE
+    high[100:230, 380:382] = 1  # a wall with a gap at its top end (OCCUPIED = 1)
+    grid = GridSpec((-3.0, 2.0), 0.05, high.shape)
+    maps = ObservedMaps(grid, grid.coarsened(4), high, coarsen_codes(high, 4))
+    sizes = []
+    measured = FreeSpace.from_codes
+    monkeypatch.setattr(
+        phases_module.FreeSpace, "from_codes", lambda codes, g, *a: sizes.append(codes.size) or measured(codes, g, *a)
+    )
+    phases, state, _ = _phases(FakeLink(Pose(10.0, 14.0, 9.0, 1.7, 0.0)), replace(CONFIG, return_home=True))
+    state.home_xy = (22.0, 8.0)  # beyond the wall
+    path = phases._path_home(maps, (14.0, 9.0))
+    whole = path_home(FreeSpace.from_codes(high, grid), (14.0, 9.0), (22.0, 8.0), CONFIG.follow.safe_distance_m)
+    assert sizes[0] <= (160 + 2 * 40 + 3) * (400 + 2 * 40 + 3) < high.size / 2
+    assert path.shape == whole.shape and np.allclose(path, whole, atol=1e-9)
+    assert path[:, 1].max() > 2.0 + 230 * 0.05  # round the wall's top end
